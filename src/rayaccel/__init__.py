@@ -1,0 +1,37 @@
+"""rayaccel: ray-tracing acceleration structures from the textbooks, behind one fast query API.
+
+>>> import rayaccel as ra
+>>> mesh = ra.load_scene("bunny")
+>>> accel = ra.build(mesh, "grid")
+>>> hits = accel.intersect(origins, directions)
+"""
+
+from .rays import Camera, Hits, RayCounters
+from .scene import (
+    MeshLoadError,
+    Spheres,
+    TriangleMesh,
+    builtin_scenes,
+    load_mesh,
+    load_scene,
+    random_spheres,
+)
+from .structures.registry import build, build_class, methods
+
+__all__ = [
+    "Camera",
+    "Hits",
+    "RayCounters",
+    "MeshLoadError",
+    "Spheres",
+    "TriangleMesh",
+    "builtin_scenes",
+    "load_mesh",
+    "load_scene",
+    "random_spheres",
+    "build",
+    "build_class",
+    "methods",
+]
+
+__version__ = "0.1.0"

@@ -1,0 +1,47 @@
+"""The one Numba policy of rayaccel.
+
+Every kernel is compiled through :func:`kernel` (serial, inlined into callers
+where small) or :func:`parallel_kernel` (``prange`` over rays), both cached on
+disk so that only the first run on a machine pays for compilation.
+
+Numerics
+--------
+``fastmath`` stays off. Its ``nnan``/``ninf`` flags would let LLVM assume that
+no value is infinite, and traversal relies on comparisons with ``inf`` (misses,
+``t_max = inf``, the reciprocal of a zero direction component). Its
+``contract`` flag would fuse ``a*b - c*d`` into an FMA, which breaks the exact
+antisymmetry of the edge functions that makes the triangle test watertight.
+``error_model="numpy"`` lets a division by zero produce ``inf`` instead of
+raising, which the slab and DDA set-up rely on.
+"""
+
+from __future__ import annotations
+
+import numba
+
+__all__ = ["kernel", "parallel_kernel", "set_threads", "thread_count", "thread_id"]
+
+_COMMON = dict(cache=True, nogil=True, error_model="numpy", fastmath=False)
+
+
+def kernel(func):
+    """Compile ``func`` as a serial, cached, GIL-free Numba kernel."""
+    return numba.njit(**_COMMON)(func)
+
+
+def parallel_kernel(func):
+    """Compile ``func`` as a cached kernel whose ``prange`` loops run on all threads."""
+    return numba.njit(parallel=True, **_COMMON)(func)
+
+
+def set_threads(n: int) -> None:
+    """Use ``n`` threads in parallel kernels (at most ``numba.config.NUMBA_NUM_THREADS``)."""
+    numba.set_num_threads(int(n))
+
+
+def thread_count() -> int:
+    """Threads that parallel kernels use now."""
+    return numba.get_num_threads()
+
+
+thread_id = numba.get_thread_id

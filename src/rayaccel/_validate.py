@@ -1,0 +1,81 @@
+"""Checks at the Python boundary: Numba kernels do no bounds checks, so every
+array that reaches one is validated and converted here, once."""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["as_points", "as_index_triples", "as_per_ray", "as_positive_int"]
+
+
+def as_points(name: str, values, *, allow_empty: bool = False) -> np.ndarray:
+    """``values`` as a C-contiguous float64 (n, 3) array of finite coordinates."""
+    try:
+        array = np.asarray(values)
+    except Exception as exc:  # ragged nested sequences and the like
+        raise TypeError(f"{name} must be an (n, 3) array of numbers: {exc}") from None
+    if array.dtype == object or not (
+        np.issubdtype(array.dtype, np.floating) or np.issubdtype(array.dtype, np.integer)
+    ):
+        raise TypeError(f"{name} must hold real numbers, got dtype {array.dtype}")
+    if array.ndim == 1 and array.shape[0] == 3:
+        array = array[None, :]
+    if array.ndim != 2 or array.shape[1] != 3:
+        raise ValueError(f"{name} must have shape (n, 3), got {array.shape}")
+    if array.shape[0] == 0 and not allow_empty:
+        raise ValueError(f"{name} is empty")
+    array = np.ascontiguousarray(array, dtype=np.float64)
+    bad = ~np.isfinite(array).all(axis=1)
+    if bad.any():
+        first = int(np.flatnonzero(bad)[0])
+        raise ValueError(
+            f"{name} has {int(bad.sum())} row(s) with NaN or infinite coordinates "
+            f"(first at index {first}: {array[first].tolist()})"
+        )
+    return array
+
+
+def as_index_triples(name: str, values, n_vertices: int) -> np.ndarray:
+    """``values`` as a C-contiguous int64 (n, 3) array of indices into ``n_vertices``."""
+    array = np.asarray(values)
+    if not np.issubdtype(array.dtype, np.integer):
+        if np.issubdtype(array.dtype, np.floating) and array.size and np.all(np.mod(array, 1) == 0):
+            array = array.astype(np.int64)
+        elif array.size:
+            raise TypeError(f"{name} must hold integer vertex indices, got dtype {array.dtype}")
+    if array.ndim != 2 or array.shape[1] != 3:
+        raise ValueError(f"{name} must have shape (n, 3), got {array.shape}")
+    if array.shape[0] == 0:
+        raise ValueError(f"{name} is empty: a scene needs at least one triangle")
+    array = np.ascontiguousarray(array, dtype=np.int64)
+    low, high = int(array.min()), int(array.max())
+    if low < 0 or high >= n_vertices:
+        bad = low if low < 0 else high
+        raise ValueError(
+            f"{name} index {bad} is out of range for {n_vertices} vertices "
+            f"(valid: 0 .. {n_vertices - 1})"
+        )
+    return array
+
+
+def as_per_ray(name: str, value, n_rays: int) -> np.ndarray:
+    """A scalar or an (n_rays,) array as a float64 (n_rays,) array without NaN."""
+    array = np.asarray(value, dtype=np.float64)
+    if array.ndim == 0:
+        array = np.full(n_rays, float(array))
+    elif array.shape != (n_rays,):
+        raise ValueError(f"{name} must be a scalar or have shape ({n_rays},), got {array.shape}")
+    else:
+        array = np.ascontiguousarray(array)
+    if np.isnan(array).any():
+        raise ValueError(f"{name} contains NaN")
+    return array
+
+
+def as_positive_int(name: str, value) -> int:
+    """``value`` as an int of at least 1."""
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+        raise TypeError(f"{name} must be an integer, got {type(value).__name__}")
+    if value < 1:
+        raise ValueError(f"{name} must be at least 1, got {value}")
+    return int(value)

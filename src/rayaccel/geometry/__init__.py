@@ -1,0 +1,1 @@
+"""Intersection and overlap kernels: ray-triangle, ray-sphere, ray-box, triangle-box, sphere-box."""

@@ -1,0 +1,55 @@
+"""Robust ray-sphere intersection.
+
+The quadratic ``a t^2 - 2 b t + c = 0`` with ``a = d.d``, ``b = -f.d``,
+``c = f.f - r^2`` (``f`` = origin - centre) is solved as in Haines, Guenther &
+Akenine-Moeller, "Precision Improvements for Ray/Sphere Intersection", Ray
+Tracing Gems, 2019: the discriminant ``b^2 - a c`` is formed as
+``a (r^2 - |f - (f.d / a) d|^2)``, which does not cancel catastrophically for
+distant spheres, and the two roots come from ``q = b + sign(b) sqrt(disc)`` as
+``q / a`` and ``c / q``, which avoids subtracting nearly equal numbers.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .._jit import kernel
+
+__all__ = ["intersect_sphere"]
+
+
+@kernel
+def intersect_sphere(geom, prim, ox, oy, oz, dx, dy, dz, t_min, t_max):
+    """Nearest ``t`` in ``[t_min, t_max]`` where the ray meets sphere ``geom[prim]``
+    (cx, cy, cz, r), or ``inf``. A ray starting inside hits the far side."""
+    fx = ox - geom[prim, 0]
+    fy = oy - geom[prim, 1]
+    fz = oz - geom[prim, 2]
+    r = geom[prim, 3]
+    a = dx * dx + dy * dy + dz * dz
+    b = -(fx * dx + fy * dy + fz * dz)
+    s = b / a
+    lx = fx + s * dx
+    ly = fy + s * dy
+    lz = fz + s * dz
+    disc = a * (r * r - (lx * lx + ly * ly + lz * lz))
+    if disc < 0.0:
+        return np.inf
+    c = fx * fx + fy * fy + fz * fz - r * r
+    root = math.sqrt(disc)
+    q = b + root if b >= 0.0 else b - root
+    if q == 0.0:
+        t_near = 0.0
+        t_far = 0.0
+    else:
+        t_near = c / q
+        t_far = q / a
+        if t_near > t_far:
+            t_near, t_far = t_far, t_near
+    if t_near >= t_min and t_near <= t_max:
+        return t_near
+    if t_far >= t_min and t_far <= t_max:
+        return t_far
+    return np.inf

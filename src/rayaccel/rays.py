@@ -1,0 +1,139 @@
+"""Ray batches, query results and the pinhole camera."""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+from ._validate import as_per_ray, as_points
+
+__all__ = ["RayBatch", "RayCounters", "Hits", "Camera", "prepare_rays"]
+
+
+class RayBatch(NamedTuple):
+    """Validated rays: float64 C-contiguous ``origins``/``directions`` (n, 3), ``t_min``/``t_max`` (n,)."""
+
+    origins: np.ndarray
+    directions: np.ndarray
+    t_min: np.ndarray
+    t_max: np.ndarray
+
+
+class RayCounters(NamedTuple):
+    """Per-ray work of one query, each (n,) int64.
+
+    ``nodes``: nodes or cells visited; ``tests``: primitive intersection tests
+    run; ``mailbox_skips``: tests skipped because the primitive was already
+    tested for this ray (grids with mailboxing; zero elsewhere).
+    """
+
+    nodes: np.ndarray
+    tests: np.ndarray
+    mailbox_skips: np.ndarray
+
+
+class Hits(NamedTuple):
+    """Closest hits of a ray batch.
+
+    ``t`` (n,) float64: distance in units of the given direction, ``inf`` on a miss;
+    ``prim`` (n,) int64: index of the primitive hit, -1 on a miss;
+    ``u``, ``v`` (n,) float64: for triangles the barycentrics of the hit point
+    ``(1 - u - v) * v0 + u * v1 + v * v2``; for spheres the texture coordinates
+    ``u = azimuth / 2pi`` in [0, 1) and ``v = polar angle / pi`` in [0, 1]; NaN on a miss;
+    ``counters``: :class:`RayCounters` when asked for, else None.
+    """
+
+    t: np.ndarray
+    prim: np.ndarray
+    u: np.ndarray
+    v: np.ndarray
+    counters: RayCounters | None = None
+
+    @property
+    def hit(self) -> np.ndarray:
+        """(n,) bool, True where the ray hit something."""
+        return self.prim >= 0
+
+
+def prepare_rays(origins, directions, t_min=0.0, t_max=np.inf) -> RayBatch:
+    """Validate and convert a ray batch once, at the Python boundary.
+
+    Raises ``ValueError`` for NaN or infinite coordinates, mismatched shapes,
+    NaN limits, and zero-length directions: a ray without a direction has no
+    defined first hit, so it is an error rather than a silent miss.
+    """
+    origins = as_points("origins", origins, allow_empty=True)
+    directions = as_points("directions", directions, allow_empty=True)
+    if origins.shape != directions.shape:
+        if len(origins) == 1:
+            origins = np.ascontiguousarray(np.broadcast_to(origins, directions.shape))
+        else:
+            raise ValueError(
+                f"origins {origins.shape} and directions {directions.shape} must have the same shape"
+            )
+    zero = ~directions.any(axis=1)
+    if zero.any():
+        raise ValueError(
+            f"{int(zero.sum())} ray direction(s) have zero length (first at index {int(np.flatnonzero(zero)[0])})"
+        )
+    n = len(origins)
+    return RayBatch(origins, directions, as_per_ray("t_min", t_min, n), as_per_ray("t_max", t_max, n))
+
+
+class Camera:
+    """A pinhole camera.
+
+    Parameters
+    ----------
+    eye, target, up : (3,) array_like
+        Position, point looked at, and the world's up direction.
+    fov : float
+        Vertical field of view in degrees.
+    """
+
+    def __init__(self, eye, target, up=(0.0, 1.0, 0.0), fov: float = 40.0):
+        self.eye = as_points("eye", eye)[0]
+        self.target = as_points("target", target)[0]
+        self.up = as_points("up", up)[0]
+        if not 0.0 < fov < 180.0:
+            raise ValueError(f"fov must lie in (0, 180) degrees, got {fov}")
+        self.fov = float(fov)
+        forward = self.target - self.eye
+        if not forward.any():
+            raise ValueError("camera eye and target coincide")
+        self.forward = forward / np.linalg.norm(forward)
+        right = np.cross(self.forward, self.up)
+        if np.linalg.norm(right) < 1e-12:
+            right = np.cross(self.forward, np.array([1.0, 0.0, 0.0]))
+            if np.linalg.norm(right) < 1e-12:
+                right = np.cross(self.forward, np.array([0.0, 0.0, 1.0]))
+        self.right = right / np.linalg.norm(right)
+        self.true_up = np.cross(self.right, self.forward)
+
+    @classmethod
+    def framing(cls, lo, hi, view=(0.35, 0.3, 1.0), up=(0.0, 1.0, 0.0), fov: float = 40.0) -> Camera:
+        """A camera that sees the whole box ``[lo, hi]`` from direction ``view``."""
+        lo, hi = np.asarray(lo, float), np.asarray(hi, float)
+        center = 0.5 * (lo + hi)
+        radius = max(0.5 * float(np.linalg.norm(hi - lo)), 1e-9)
+        view = np.asarray(view, float)
+        distance = radius / np.sin(np.radians(fov) / 2.0) * 1.02
+        return cls(center + distance * view / np.linalg.norm(view), center, up, fov)
+
+    def rays(self, width: int, height: int, pixels: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Origins and unit directions through pixel centres, row-major from the top left.
+
+        ``pixels`` selects flat pixel indices; all pixels when None.
+        """
+        if pixels is None:
+            pixels = np.arange(width * height)
+        row, col = np.divmod(np.asarray(pixels, dtype=np.int64), width)
+        half_h = np.tan(np.radians(self.fov) / 2.0)
+        half_w = half_h * width / height
+        x = ((col + 0.5) / width * 2.0 - 1.0) * half_w
+        y = (1.0 - (row + 0.5) / height * 2.0) * half_h
+        directions = self.forward + x[:, None] * self.right + y[:, None] * self.true_up
+        directions /= np.linalg.norm(directions, axis=1, keepdims=True)
+        origins = np.broadcast_to(self.eye, directions.shape).copy()
+        return origins, directions

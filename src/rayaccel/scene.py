@@ -1,0 +1,270 @@
+"""Scenes: triangle meshes and spheres, mesh loading, built-in and procedural scenes.
+
+A scene hands the rest of the library three things, all flat arrays:
+
+* ``bounds()`` -- per-primitive boxes ``lo``, ``hi`` and ``centroid`` (n, 3), the only
+  thing builders see;
+* ``kind`` -- :data:`TRIANGLE` or :data:`SPHERE`;
+* ``geometry`` -- the per-primitive data the intersection kernels read: for
+  triangles the three vertices as one row of 9 floats, for spheres
+  ``(cx, cy, cz, radius)``.
+"""
+
+from __future__ import annotations
+
+import gzip
+import io
+import os
+import re
+from pathlib import Path
+
+import numpy as np
+
+from ._validate import as_index_triples, as_points, as_positive_int
+
+__all__ = [
+    "TRIANGLE",
+    "SPHERE",
+    "TriangleMesh",
+    "Spheres",
+    "MeshLoadError",
+    "load_mesh",
+    "random_spheres",
+    "builtin_scenes",
+    "load_scene",
+    "data_directory",
+]
+
+TRIANGLE = 0
+SPHERE = 1
+
+
+class MeshLoadError(ValueError):
+    """A mesh file could not be read: missing, unreadable, truncated or empty."""
+
+
+class PrimitiveBounds:
+    """Axis-aligned boxes of a scene's primitives: ``lo``, ``hi`` and ``centroid``, each (n, 3)."""
+
+    __slots__ = ("lo", "hi", "centroid")
+
+    def __init__(self, lo: np.ndarray, hi: np.ndarray, centroid: np.ndarray):
+        self.lo, self.hi, self.centroid = lo, hi, centroid
+
+    @property
+    def scene_lo(self) -> np.ndarray:
+        return self.lo.min(axis=0)
+
+    @property
+    def scene_hi(self) -> np.ndarray:
+        return self.hi.max(axis=0)
+
+
+class TriangleMesh:
+    """An indexed triangle mesh.
+
+    Parameters
+    ----------
+    vertices : (V, 3) array_like of float
+        Finite vertex positions.
+    faces : (F, 3) array_like of int
+        Vertex indices of each triangle, ``0 <= index < V``; at least one face.
+        Degenerate (zero-area) triangles are allowed and are never hit.
+    """
+
+    kind = TRIANGLE
+
+    def __init__(self, vertices, faces):
+        self.vertices = as_points("vertices", vertices)
+        self.faces = as_index_triples("faces", faces, len(self.vertices))
+        self.geometry = np.ascontiguousarray(self.vertices[self.faces].reshape(-1, 9))
+
+    def __len__(self) -> int:
+        return len(self.faces)
+
+    def __repr__(self) -> str:
+        return f"TriangleMesh({len(self.vertices)} vertices, {len(self.faces)} triangles)"
+
+    def bounds(self) -> PrimitiveBounds:
+        corners = self.geometry.reshape(-1, 3, 3)
+        lo, hi = corners.min(axis=1), corners.max(axis=1)
+        return PrimitiveBounds(lo, hi, corners.mean(axis=1))
+
+    def face_normals(self) -> np.ndarray:
+        """Unit normals (F, 3) by the right-hand rule; zero for degenerate faces."""
+        corners = self.geometry.reshape(-1, 3, 3)
+        normals = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+        length = np.linalg.norm(normals, axis=1, keepdims=True)
+        return np.divide(normals, length, out=np.zeros_like(normals), where=length > 0)
+
+    def vertex_normals(self) -> np.ndarray:
+        """Area-weighted unit vertex normals (V, 3), for smooth shading."""
+        corners = self.geometry.reshape(-1, 3, 3)
+        weighted = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+        normals = np.zeros_like(self.vertices)
+        for corner in range(3):
+            np.add.at(normals, self.faces[:, corner], weighted)
+        length = np.linalg.norm(normals, axis=1, keepdims=True)
+        return np.divide(normals, length, out=np.zeros_like(normals), where=length > 0)
+
+
+class Spheres:
+    """A set of spheres.
+
+    Parameters
+    ----------
+    centers : (N, 3) array_like of float
+    radii : (N,) array_like of float, or a scalar for all spheres; each > 0 and finite.
+    """
+
+    kind = SPHERE
+
+    def __init__(self, centers, radii):
+        self.centers = as_points("centers", centers)
+        radii = np.asarray(radii, dtype=np.float64)
+        if radii.ndim == 0:
+            radii = np.full(len(self.centers), float(radii))
+        if radii.shape != (len(self.centers),):
+            raise ValueError(
+                f"radii must be a scalar or have shape ({len(self.centers)},), got {radii.shape}"
+            )
+        if not np.isfinite(radii).all():
+            raise ValueError("radii contain NaN or infinite values")
+        if (radii <= 0).any():
+            first = int(np.flatnonzero(radii <= 0)[0])
+            raise ValueError(f"radii must be positive; radius {first} is {radii[first]}")
+        self.radii = np.ascontiguousarray(radii)
+        self.geometry = np.ascontiguousarray(np.column_stack([self.centers, self.radii]))
+
+    def __len__(self) -> int:
+        return len(self.centers)
+
+    def __repr__(self) -> str:
+        return f"Spheres({len(self.centers)})"
+
+    def bounds(self) -> PrimitiveBounds:
+        r = self.radii[:, None]
+        return PrimitiveBounds(self.centers - r, self.centers + r, self.centers.copy())
+
+
+def random_spheres(n: int, seed: int = 0, fill: float = 0.05) -> Spheres:
+    """The lecture's experiment: ``n`` random spheres inside the unit cube.
+
+    All spheres share the radius ``r = (3 * fill / (4 * pi * n)) ** (1/3)``, so
+    that their volumes add up to ``fill`` of the cube whatever ``n`` is: the
+    scene's covered fraction, the expected free path of a ray in cell widths of
+    a grid with 8n cells, and so the look of the images stay the same as ``n``
+    grows. Centres are uniform in ``[r, 1 - r]^3``, so every sphere lies inside
+    the cube; spheres may overlap.
+    """
+    n = as_positive_int("n", n)
+    if not 0 < fill < 1:
+        raise ValueError(f"fill must lie in (0, 1), got {fill}")
+    radius = (3.0 * fill / (4.0 * np.pi * n)) ** (1.0 / 3.0)
+    rng = np.random.default_rng(seed)
+    centers = rng.uniform(radius, 1.0 - radius, size=(n, 3))
+    return Spheres(centers, radius)
+
+
+def _read_bytes(path: Path) -> tuple[bytes, str]:
+    if not path.exists():
+        raise MeshLoadError(f"mesh file not found: {path}")
+    if not path.is_file():
+        raise MeshLoadError(f"not a file: {path}")
+    suffixes = [s.lower() for s in path.suffixes]
+    compressed = bool(suffixes) and suffixes[-1] == ".gz"
+    file_type = (suffixes[-2] if compressed and len(suffixes) > 1 else suffixes[-1] if suffixes else "")
+    file_type = file_type.lstrip(".")
+    if file_type not in {"obj", "ply", "stl", "off"}:
+        raise MeshLoadError(f"unsupported mesh format {file_type!r} for {path} (use OBJ, PLY, STL or OFF)")
+    try:
+        data = path.read_bytes()
+        if compressed:
+            data = gzip.decompress(data)
+    except (OSError, EOFError) as exc:
+        raise MeshLoadError(f"cannot read {path}: {exc}") from None
+    return data, file_type
+
+
+def load_mesh(source) -> TriangleMesh:
+    """Read a triangle mesh.
+
+    Parameters
+    ----------
+    source : str, os.PathLike or trimesh.Trimesh
+        An OBJ, PLY, STL or OFF file, optionally gzip-compressed (``.obj.gz``),
+        or an already loaded ``trimesh.Trimesh``. Files with several objects are
+        merged into one mesh. Vertices are kept as stored (no merging).
+
+    Raises
+    ------
+    MeshLoadError
+        The file is missing, unreadable, truncated, of an unknown format or holds no triangle.
+    """
+    import trimesh
+
+    if isinstance(source, trimesh.Trimesh):
+        return TriangleMesh(source.vertices, source.faces)
+    if not isinstance(source, (str, os.PathLike)):
+        raise TypeError(f"load_mesh expects a path or a trimesh.Trimesh, got {type(source).__name__}")
+    path = Path(source)
+    data, file_type = _read_bytes(path)
+    try:
+        loaded = trimesh.load(io.BytesIO(data), file_type=file_type, process=False, force="mesh")
+    except Exception as exc:  # trimesh raises many types for corrupt input
+        raise MeshLoadError(f"cannot parse {path} as {file_type.upper()}: {exc}") from None
+    faces = getattr(loaded, "faces", None)
+    if faces is None or len(faces) == 0:
+        raise MeshLoadError(f"{path} holds no triangles")
+    try:
+        return TriangleMesh(loaded.vertices, loaded.faces)
+    except (TypeError, ValueError) as exc:
+        raise MeshLoadError(f"{path} is corrupt: {exc}") from None
+
+
+def data_directory() -> Path:
+    """The folder of the meshes rayaccel ships (``$RAYACCEL_DATA`` overrides it)."""
+    override = os.environ.get("RAYACCEL_DATA")
+    if override:
+        return Path(override)
+    for parent in Path(__file__).resolve().parents:
+        candidate = parent / "data" / "meshes"
+        if candidate.is_dir():
+            return candidate
+    raise MeshLoadError(
+        "the shipped meshes were not found; install rayaccel from its source tree "
+        "(pip install -e .) or set RAYACCEL_DATA to a folder holding them"
+    )
+
+
+_BUILTIN_MESHES = {
+    "bunny": "stanford-bunny.obj",
+    "dragon": "dragon_vrip.ply.gz",
+    "dragon-203k": "dragon_vrip_res2.ply.gz",
+    "dragon-48k": "dragon_vrip_res3.ply.gz",
+    "dragon-11k": "dragon_vrip_res4.ply.gz",
+    "armadillo": "armadillo.obj.gz",
+    "buddha": "happy.obj.gz",
+    "teapot": "teapot.obj",
+    "spot": "spot.obj",
+    "cornell-box": "cornell_box.obj",
+    "sphere": "unit_sphere.STL",
+}
+
+
+def builtin_scenes() -> list[str]:
+    """Names :func:`load_scene` knows besides file paths (``spheres:N`` takes any N)."""
+    return sorted(_BUILTIN_MESHES) + ["spheres:N"]
+
+
+def load_scene(spec: str):
+    """A scene from a name: a built-in mesh, ``spheres:N[:seed]`` or a mesh file path."""
+    match = re.fullmatch(r"spheres:([0-9_,]+)(?::([0-9]+))?", spec)
+    if match:
+        n = int(match.group(1).replace("_", "").replace(",", ""))
+        return random_spheres(n, seed=int(match.group(2) or 0))
+    if spec in _BUILTIN_MESHES:
+        return load_mesh(data_directory() / _BUILTIN_MESHES[spec])
+    if Path(spec).suffix or Path(spec).exists():
+        return load_mesh(spec)
+    raise ValueError(f"unknown scene {spec!r}: give a mesh file or one of {', '.join(builtin_scenes())}")

@@ -1,0 +1,1 @@
+"""Acceleration structures behind one API: see :mod:`rayaccel.structures.registry`."""

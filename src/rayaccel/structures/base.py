@@ -1,0 +1,107 @@
+"""The public face every acceleration structure shares: validation, queries, statistics."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .._jit import kernel
+from ..rays import Camera, Hits, RayCounters, prepare_rays
+from ..scene import SPHERE, Spheres, TriangleMesh
+
+__all__ = ["Accelerator", "is_closer"]
+
+
+@kernel
+def is_closer(t, prim, best_t, best_prim):
+    """Whether a hit ``(t, prim)`` replaces the best so far. Equal distances go to
+    the lower primitive index, so every structure reports the same primitive as
+    brute force even where a ray meets a shared edge or vertex."""
+    if t == np.inf:
+        return False
+    return best_prim < 0 or t < best_t or (t == best_t and prim < best_prim)
+
+
+class Accelerator:
+    """A built acceleration structure over a scene.
+
+    Subclasses set :attr:`method`, fill :attr:`build_seconds`, and implement
+    :meth:`_trace` (one kernel call filling the output arrays) and
+    :meth:`_structure_stats`.
+    """
+
+    method = "?"
+
+    def __init__(self, scene: TriangleMesh | Spheres, options: dict):
+        self.scene = scene
+        self.options = options
+        self.build_seconds = 0.0
+
+    def __repr__(self) -> str:
+        opts = ", ".join(f"{k}={v!r}" for k, v in self.options.items())
+        return f"<{self.method} over {self.scene!r}{', ' + opts if opts else ''}>"
+
+    def intersect(self, origins, directions, t_min=0.0, t_max=np.inf, *, any_hit=False, counters=False) -> Hits:
+        """Closest hit of each ray in ``[t_min, t_max]``.
+
+        Parameters
+        ----------
+        origins, directions : (n, 3) array_like
+            Rays ``origin + t * direction``; directions need not be unit length but
+            must not be zero. A single origin is broadcast to all directions.
+        t_min, t_max : float or (n,) array_like
+            The interval searched, inclusive.
+        any_hit : bool
+            Stop at the first hit found rather than the closest (shadow rays).
+        counters : bool
+            Also return per-ray work counters in ``hits.counters``.
+        """
+        batch = prepare_rays(origins, directions, t_min, t_max)
+        n = len(batch.origins)
+        t = np.full(n, np.inf)
+        prim = np.full(n, -1, dtype=np.int64)
+        u = np.zeros(n)
+        v = np.zeros(n)
+        work = np.zeros((n if counters else 0, 3), dtype=np.int64)
+        if n:
+            self._trace(batch, bool(any_hit), t, prim, u, v, work)
+        hit = prim >= 0
+        if self.scene.kind == SPHERE and hit.any():
+            u[hit], v[hit] = self._sphere_uv(batch, t, prim, hit)
+        u[~hit] = np.nan
+        v[~hit] = np.nan
+        ray_counters = RayCounters(work[:, 0].copy(), work[:, 1].copy(), work[:, 2].copy()) if counters else None
+        return Hits(t, prim, u, v, ray_counters)
+
+    def occluded(self, origins, directions, t_min=0.0, t_max=np.inf) -> np.ndarray:
+        """(n,) bool: whether anything lies on each ray within ``[t_min, t_max]``."""
+        return self.intersect(origins, directions, t_min, t_max, any_hit=True).hit
+
+    def _sphere_uv(self, batch, t, prim, hit):
+        points = batch.origins[hit] + t[hit, None] * batch.directions[hit]
+        normal = (points - self.scene.centers[prim[hit]]) / self.scene.radii[prim[hit], None]
+        u = (np.arctan2(normal[:, 1], normal[:, 0]) / (2.0 * np.pi)) % 1.0
+        v = np.arccos(np.clip(normal[:, 2], -1.0, 1.0)) / np.pi
+        return u, v
+
+    def _trace(self, batch, any_hit, t, prim, u, v, work) -> None:
+        raise NotImplementedError
+
+    def _structure_stats(self) -> dict:
+        raise NotImplementedError
+
+    def stats(self, origins=None, directions=None) -> dict:
+        """The statistics of DESIGN.md section 4.
+
+        Structural figures come from the built arrays; ``avg_nodes_per_ray`` and
+        ``avg_intersections_per_ray`` are measured over the given rays, or over
+        128 x 128 primary rays of the default camera when none are given.
+        """
+        from ..stats import measured_stats
+
+        result = {"method": self.method, "primitives": len(self.scene), "build_seconds": self.build_seconds}
+        result.update(self._structure_stats())
+        if origins is None:
+            lo, hi = self.scene.bounds().scene_lo, self.scene.bounds().scene_hi
+            origins, directions = Camera.framing(lo, hi).rays(128, 128)
+        result.update(measured_stats(self, origins, directions))
+        return result

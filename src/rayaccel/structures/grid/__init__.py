@@ -1,0 +1,1 @@
+"""Uniform grid with 3D-DDA traversal and mailboxing."""

@@ -1,0 +1,106 @@
+"""Uniform grid construction: resolution choice and counting-sort insertion.
+
+The number of cells follows either a density, ``cells = density * n`` (the
+lecture uses 8), or the cost model of a grid traversal: a ray crosses about
+``R^(1/3)`` of ``R`` cells and meets ``n / R^(2/3)`` objects, so the cost
+``C_c R^(1/3) + C_i n / R^(2/3)`` is least at ``R = 2 n C_i / C_c`` cells,
+with ``C_i`` one object test and ``C_c`` one cell-to-cell step as measured by
+:mod:`.calibrate`. Cells are shaped like the scene's box, so they need not be
+cubes.
+
+Insertion (after Cleary & Wyvill 1988; the two-pass counting layout as in
+Lagae & Dutre, "Compact, Fast and Robust Grids for Ray Tracing", 2008): one
+pass counts the references per cell, a prefix sum turns the counts into row
+offsets, a second pass writes the references. With ``exact=True`` a primitive
+goes only into the cells it really overlaps (triangle-box SAT, sphere-box
+distance); otherwise into every cell its bounding box overlaps.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ..._jit import kernel
+from ...geometry.overlap import prim_overlaps_box
+from .layout import GridArrays
+
+__all__ = ["MAX_CELLS", "grid_box", "resolution_for", "build_grid"]
+
+MAX_CELLS = 1 << 27
+_CELL_PAD = 1e-6  # cells are grown by this fraction of their size when inserting
+
+
+def grid_box(scene_lo: np.ndarray, scene_hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The scene box, padded a little and given a minimum thickness on flat axes."""
+    extent = scene_hi - scene_lo
+    size = max(float(extent.max()), 1e-12)
+    pad = np.maximum(1e-7 * size, 0.5 * np.maximum(1e-3 * size - extent, 0.0))
+    return scene_lo - pad, scene_hi + pad
+
+
+def resolution_for(extent: np.ndarray, n_cells: float) -> np.ndarray:
+    """Cells per axis, about ``n_cells`` in all, shaped to the box ``extent``."""
+    n_cells = min(max(float(n_cells), 1.0), float(MAX_CELLS))
+    side = (float(np.prod(extent)) / n_cells) ** (1.0 / 3.0)
+    res = np.maximum(1, np.round(extent / side)).astype(np.int64)
+    while res.prod() > MAX_CELLS:
+        res = np.maximum(1, res * 0.95).astype(np.int64)
+    return res
+
+
+@kernel
+def _cell_span(lo, hi, grid_lo, cell_size, res, axis):
+    pad = _CELL_PAD * cell_size[axis]
+    first = int(math.floor((lo - pad - grid_lo[axis]) / cell_size[axis]))
+    last = int(math.floor((hi + pad - grid_lo[axis]) / cell_size[axis]))
+    return max(first, 0), min(last, res[axis] - 1)
+
+
+@kernel
+def _insert(prim_lo, prim_hi, kind, geom, exact, grid_lo, cell_size, res, counts, cursor, cell_prims, fill):
+    """Visit every (primitive, cell) pair that overlaps; count it, or with ``fill`` write it."""
+    nx, ny = res[0], res[1]
+    hx = 0.5 * cell_size[0] * (1.0 + 2.0 * _CELL_PAD)
+    hy = 0.5 * cell_size[1] * (1.0 + 2.0 * _CELL_PAD)
+    hz = 0.5 * cell_size[2] * (1.0 + 2.0 * _CELL_PAD)
+    for prim in range(prim_lo.shape[0]):
+        x0, x1 = _cell_span(prim_lo[prim, 0], prim_hi[prim, 0], grid_lo, cell_size, res, 0)
+        y0, y1 = _cell_span(prim_lo[prim, 1], prim_hi[prim, 1], grid_lo, cell_size, res, 1)
+        z0, z1 = _cell_span(prim_lo[prim, 2], prim_hi[prim, 2], grid_lo, cell_size, res, 2)
+        test = exact and (x1 > x0 or y1 > y0 or z1 > z0)
+        for z in range(z0, z1 + 1):
+            for y in range(y0, y1 + 1):
+                for x in range(x0, x1 + 1):
+                    if test:
+                        cx = grid_lo[0] + (x + 0.5) * cell_size[0]
+                        cy = grid_lo[1] + (y + 0.5) * cell_size[1]
+                        cz = grid_lo[2] + (z + 0.5) * cell_size[2]
+                        if not prim_overlaps_box(kind, geom, prim, cx, cy, cz, hx, hy, hz):
+                            continue
+                    cell = x + nx * (y + ny * z)
+                    if fill:
+                        cell_prims[cursor[cell]] = prim
+                        cursor[cell] += 1
+                    else:
+                        counts[cell] += 1
+
+
+def build_grid(bounds, kind: int, geom: np.ndarray, res: np.ndarray, exact: bool) -> GridArrays:
+    """Insert the primitives into a grid of ``res`` cells over their padded box."""
+    lo, hi = grid_box(bounds.scene_lo, bounds.scene_hi)
+    res = np.asarray(res, dtype=np.int64)
+    cell_size = (hi - lo) / res
+    n_cells = int(res.prod())
+    counts = np.zeros(n_cells, dtype=np.int64)
+    unused = np.zeros(0, dtype=np.int64)
+    _insert(bounds.lo, bounds.hi, kind, geom, exact, lo, cell_size, res, counts, unused,
+            np.zeros(0, dtype=np.int32), False)
+    cell_first = np.zeros(n_cells + 1, dtype=np.int64)
+    np.cumsum(counts, out=cell_first[1:])
+    del counts
+    cell_prims = np.empty(int(cell_first[-1]), dtype=np.int32)
+    cursor = cell_first[:-1].copy()
+    _insert(bounds.lo, bounds.hi, kind, geom, exact, lo, cell_size, res, unused, cursor, cell_prims, True)
+    return GridArrays(lo, hi, res, cell_size, cell_first, cell_prims)

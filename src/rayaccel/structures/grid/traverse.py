@@ -1,0 +1,114 @@
+"""3D-DDA traversal of a uniform grid with mailboxing.
+
+Amanatides & Woo, "A Fast Voxel Traversal Algorithm for Ray Tracing",
+Eurographics 1987: from the cell of the entry point, step each time into the
+neighbour across the nearest of the three next cell boundaries, with
+``t_next`` and ``t_delta`` per axis.
+
+A hit found in a cell may lie beyond that cell (the object reaches into later
+cells). Every hit found is kept as a candidate, but the walk stops only once
+the best candidate lies before the current cell's exit: nothing in a later cell
+can be closer. Keeping the candidate is also what makes mailboxing exact: an
+object already tested for this ray (Amanatides & Woo's "mailbox", here one
+stamp array per thread, so parallel rays never share one) is skipped in later
+cells, and its hit is not lost because it is still the candidate.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import prange
+
+from ..._jit import kernel, parallel_kernel, thread_id
+from ...geometry.box import clip_to_box
+from ...geometry.primitive import intersect_prim, ray_setup
+from ..base import is_closer
+
+__all__ = ["grid_trace_kernel"]
+
+
+@kernel
+def _axis_start(o, d, t_enter, lo, size, n):
+    """Cell of the entry point on one axis, step direction, first boundary crossing, crossing interval."""
+    c = int(math.floor((o + t_enter * d - lo) / size))
+    c = min(max(c, 0), n - 1)
+    if d > 0.0:
+        return c, 1, (lo + (c + 1) * size - o) / d, size / d
+    if d < 0.0:
+        return c, -1, (lo + c * size - o) / d, -size / d
+    return c, 0, np.inf, np.inf
+
+
+@parallel_kernel
+def grid_trace_kernel(grid_lo, grid_hi, res, cell_size, cell_first, cell_prims, kind, geom,
+                      origins, directions, t_min, t_max, any_hit, mailbox,
+                      out_t, out_prim, out_u, out_v, work):
+    """Trace every ray; ``mailbox`` is (threads, n_prims) filled with -1, or empty to disable."""
+    use_mailbox = mailbox.shape[0] > 0
+    nx, ny, nz = res[0], res[1], res[2]
+    count_work = work.shape[0] > 0
+    for i in prange(origins.shape[0]):
+        ox, oy, oz = origins[i, 0], origins[i, 1], origins[i, 2]
+        dx, dy, dz = directions[i, 0], directions[i, 1], directions[i, 2]
+        t_enter, t_exit = clip_to_box(grid_lo, grid_hi, ox, oy, oz, dx, dy, dz, t_min[i], t_max[i])
+        if t_enter > t_exit:
+            continue
+        ray = ray_setup(ox, oy, oz, dx, dy, dz)
+        cx, step_x, next_x, delta_x = _axis_start(ox, dx, t_enter, grid_lo[0], cell_size[0], res[0])
+        cy, step_y, next_y, delta_y = _axis_start(oy, dy, t_enter, grid_lo[1], cell_size[1], res[1])
+        cz, step_z, next_z, delta_z = _axis_start(oz, dz, t_enter, grid_lo[2], cell_size[2], res[2])
+        tid = thread_id() if use_mailbox else 0
+        best_t = t_max[i]
+        best_prim = -1
+        best_u = 0.0
+        best_v = 0.0
+        n_cells = 0
+        n_tests = 0
+        n_skips = 0
+        while True:
+            n_cells += 1
+            flat = cx + nx * (cy + ny * cz)
+            for k in range(cell_first[flat], cell_first[flat + 1]):
+                prim = cell_prims[k]
+                if use_mailbox:
+                    if mailbox[tid, prim] == i:
+                        n_skips += 1
+                        continue
+                    mailbox[tid, prim] = i
+                n_tests += 1
+                t, u, v = intersect_prim(kind, geom, prim, ray, t_min[i], best_t)
+                if is_closer(t, prim, best_t, best_prim):
+                    best_t, best_prim, best_u, best_v = t, prim, u, v
+                    if any_hit:
+                        break
+            if any_hit and best_prim >= 0:
+                break
+            cell_exit = min(next_x, next_y, next_z)
+            if (best_prim >= 0 and best_t <= cell_exit) or cell_exit > t_exit:
+                break
+            if next_x == cell_exit:
+                cx += step_x
+                if cx < 0 or cx >= nx:
+                    break
+                next_x += delta_x
+            elif next_y == cell_exit:
+                cy += step_y
+                if cy < 0 or cy >= ny:
+                    break
+                next_y += delta_y
+            else:
+                cz += step_z
+                if cz < 0 or cz >= nz:
+                    break
+                next_z += delta_z
+        if best_prim >= 0:
+            out_t[i] = best_t
+            out_prim[i] = best_prim
+            out_u[i] = best_u
+            out_v[i] = best_v
+        if count_work:
+            work[i, 0] = n_cells
+            work[i, 1] = n_tests
+            work[i, 2] = n_skips

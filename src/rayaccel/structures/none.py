@@ -1,0 +1,68 @@
+"""Brute force: every ray against every primitive. The reference all structures are checked against."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+from numba import prange
+
+from .._jit import parallel_kernel
+from ..geometry.primitive import intersect_prim, ray_setup
+from .base import Accelerator, is_closer
+
+__all__ = ["BruteForce", "brute_force_kernel"]
+
+
+@parallel_kernel
+def brute_force_kernel(kind, geom, origins, directions, t_min, t_max, any_hit, out_t, out_prim, out_u, out_v, work):
+    n_prims = geom.shape[0]
+    for i in prange(origins.shape[0]):
+        ray = ray_setup(origins[i, 0], origins[i, 1], origins[i, 2], directions[i, 0], directions[i, 1], directions[i, 2])
+        best_t = t_max[i]
+        best_prim = -1
+        best_u = 0.0
+        best_v = 0.0
+        tests = 0
+        for prim in range(n_prims):
+            tests += 1
+            t, u, v = intersect_prim(kind, geom, prim, ray, t_min[i], best_t)
+            if is_closer(t, prim, best_t, best_prim):
+                best_t, best_prim, best_u, best_v = t, prim, u, v
+                if any_hit:
+                    break
+        if best_prim >= 0:
+            out_t[i] = best_t
+            out_prim[i] = best_prim
+            out_u[i] = best_u
+            out_v[i] = best_v
+        if work.shape[0] > 0:
+            work[i, 1] = tests
+
+
+class BruteForce(Accelerator):
+    """``none``: no acceleration structure; every ray tests every primitive (O(n) per ray).
+
+    No options. The counters report 0 nodes and n primitive tests per ray
+    (fewer for any-hit queries).
+    """
+
+    method = "none"
+
+    def __init__(self, scene):
+        super().__init__(scene, {})
+        start = time.perf_counter()
+        self.build_seconds = time.perf_counter() - start
+
+    def _trace(self, batch, any_hit, t, prim, u, v, work):
+        brute_force_kernel(self.scene.kind, self.scene.geometry, batch.origins, batch.directions,
+                           batch.t_min, batch.t_max, any_hit, t, prim, u, v, work)
+
+    def _structure_stats(self) -> dict:
+        n = len(self.scene)
+        return {
+            "nodes": 1, "leaves": 1, "nonempty_leaves": 1, "max_depth": 0, "references": n,
+            "avg_prims_per_nonempty_leaf": float(n), "bytes": 0,
+            "expected_traversal_steps": 0.0, "expected_leaves_visited": 1.0,
+            "expected_intersections": float(n), "expected_cost": float(n),
+        }

@@ -1,0 +1,52 @@
+"""``build()`` and ``methods()``: the one door to every acceleration structure."""
+
+from __future__ import annotations
+
+from ..scene import Spheres, TriangleMesh
+from .grid.accelerator import UniformGrid
+from .none import BruteForce
+
+__all__ = ["build", "build_class", "methods"]
+
+_METHODS = {
+    "none": BruteForce,
+    "grid": UniformGrid,
+}
+
+
+def methods() -> list[str]:
+    """Every method name :func:`build` accepts."""
+    return list(_METHODS)
+
+
+def build(scene, method: str = "grid", **options):
+    """Build acceleration structure ``method`` over ``scene``.
+
+    Parameters
+    ----------
+    scene : TriangleMesh, Spheres or trimesh.Trimesh
+    method : str
+        One of :func:`methods`; the options of each are documented on its class
+        (``help(rayaccel.build_class(method))``).
+    **options
+        Keyword options of that method; unknown ones raise ``TypeError``.
+    """
+    if method not in _METHODS:
+        raise ValueError(f"unknown method {method!r}; choose one of {', '.join(_METHODS)}")
+    if not isinstance(scene, (TriangleMesh, Spheres)):
+        try:
+            import trimesh
+        except ImportError:  # pragma: no cover - trimesh is a dependency
+            trimesh = None
+        if trimesh is not None and isinstance(scene, trimesh.Trimesh):
+            scene = TriangleMesh(scene.vertices, scene.faces)
+        else:
+            raise TypeError(f"scene must be a TriangleMesh, Spheres or trimesh.Trimesh, got {type(scene).__name__}")
+    return _METHODS[method](scene, **options)
+
+
+def build_class(method: str):
+    """The class behind ``method``, whose docstring lists its options."""
+    if method not in _METHODS:
+        raise ValueError(f"unknown method {method!r}; choose one of {', '.join(_METHODS)}")
+    return _METHODS[method]
