@@ -13,7 +13,10 @@ Lagae & Dutre, "Compact, Fast and Robust Grids for Ray Tracing", 2008): one
 pass counts the references per cell, a prefix sum turns the counts into row
 offsets, a second pass writes the references. With ``exact=True`` a primitive
 goes only into the cells it really overlaps (triangle-box SAT, sphere-box
-distance); otherwise into every cell its bounding box overlaps.
+distance); otherwise into every cell its bounding box overlaps. Both passes
+run in parallel over slabs of cell layers along z, each slab with its own
+bucket of the primitives that reach it, so writes never collide and stay
+within a cache-sized part of the cell arrays.
 """
 
 from __future__ import annotations
@@ -22,7 +25,9 @@ import math
 
 import numpy as np
 
-from ..._jit import kernel
+from numba import prange
+
+from ..._jit import kernel, parallel_kernel, thread_count
 from ...geometry.overlap import prim_overlaps_box
 from .layout import GridArrays
 
@@ -59,32 +64,63 @@ def _cell_span(lo, hi, grid_lo, cell_size, res, axis):
 
 
 @kernel
-def _insert(prim_lo, prim_hi, kind, geom, exact, grid_lo, cell_size, res, counts, cursor, cell_prims, fill):
-    """Visit every (primitive, cell) pair that overlaps; count it, or with ``fill`` write it."""
+def _z_slabs(prim_lo, prim_hi, grid_lo, cell_size, res, slab_depth, n_slabs):
+    """Bucket the primitives by the slabs of ``slab_depth`` cell layers their boxes reach."""
+    n_prims = prim_lo.shape[0]
+    spans = np.empty((n_prims, 2), dtype=np.int64)
+    slab_first = np.zeros(n_slabs + 1, dtype=np.int64)
+    for prim in range(n_prims):
+        z0, z1 = _cell_span(prim_lo[prim, 2], prim_hi[prim, 2], grid_lo, cell_size, res, 2)
+        spans[prim, 0] = z0 // slab_depth
+        spans[prim, 1] = z1 // slab_depth
+        for s in range(spans[prim, 0], spans[prim, 1] + 1):
+            slab_first[s + 1] += 1
+    for s in range(n_slabs):
+        slab_first[s + 1] += slab_first[s]
+    cursor = slab_first[:-1].copy()
+    slab_prims = np.empty(slab_first[-1], dtype=np.int64)
+    for prim in range(n_prims):
+        for s in range(spans[prim, 0], spans[prim, 1] + 1):
+            slab_prims[cursor[s]] = prim
+            cursor[s] += 1
+    return slab_first, slab_prims
+
+
+@parallel_kernel
+def _insert(prim_lo, prim_hi, kind, geom, exact, grid_lo, cell_size, res, slab_depth, slab_first, slab_prims,
+            counts, cursor, cell_prims, fill):
+    """Visit every (primitive, cell) pair that overlaps; count it, or with ``fill`` write it.
+
+    Slabs of cell layers run in parallel; each writes only to its own cells.
+    """
     nx, ny = res[0], res[1]
     hx = 0.5 * cell_size[0] * (1.0 + 2.0 * _CELL_PAD)
     hy = 0.5 * cell_size[1] * (1.0 + 2.0 * _CELL_PAD)
     hz = 0.5 * cell_size[2] * (1.0 + 2.0 * _CELL_PAD)
-    for prim in range(prim_lo.shape[0]):
-        x0, x1 = _cell_span(prim_lo[prim, 0], prim_hi[prim, 0], grid_lo, cell_size, res, 0)
-        y0, y1 = _cell_span(prim_lo[prim, 1], prim_hi[prim, 1], grid_lo, cell_size, res, 1)
-        z0, z1 = _cell_span(prim_lo[prim, 2], prim_hi[prim, 2], grid_lo, cell_size, res, 2)
-        test = exact and (x1 > x0 or y1 > y0 or z1 > z0)
-        for z in range(z0, z1 + 1):
-            for y in range(y0, y1 + 1):
-                for x in range(x0, x1 + 1):
-                    if test:
-                        cx = grid_lo[0] + (x + 0.5) * cell_size[0]
-                        cy = grid_lo[1] + (y + 0.5) * cell_size[1]
-                        cz = grid_lo[2] + (z + 0.5) * cell_size[2]
-                        if not prim_overlaps_box(kind, geom, prim, cx, cy, cz, hx, hy, hz):
-                            continue
-                    cell = x + nx * (y + ny * z)
-                    if fill:
-                        cell_prims[cursor[cell]] = prim
-                        cursor[cell] += 1
-                    else:
-                        counts[cell] += 1
+    for slab in prange(slab_first.shape[0] - 1):
+        slab_z0 = slab * slab_depth
+        slab_z1 = slab_z0 + slab_depth - 1
+        for k in range(slab_first[slab], slab_first[slab + 1]):
+            prim = slab_prims[k]
+            x0, x1 = _cell_span(prim_lo[prim, 0], prim_hi[prim, 0], grid_lo, cell_size, res, 0)
+            y0, y1 = _cell_span(prim_lo[prim, 1], prim_hi[prim, 1], grid_lo, cell_size, res, 1)
+            z0, z1 = _cell_span(prim_lo[prim, 2], prim_hi[prim, 2], grid_lo, cell_size, res, 2)
+            test = exact and (x1 > x0 or y1 > y0 or z1 > z0)
+            for z in range(max(z0, slab_z0), min(z1, slab_z1) + 1):
+                for y in range(y0, y1 + 1):
+                    for x in range(x0, x1 + 1):
+                        if test:
+                            cx = grid_lo[0] + (x + 0.5) * cell_size[0]
+                            cy = grid_lo[1] + (y + 0.5) * cell_size[1]
+                            cz = grid_lo[2] + (z + 0.5) * cell_size[2]
+                            if not prim_overlaps_box(kind, geom, prim, cx, cy, cz, hx, hy, hz):
+                                continue
+                        cell = x + nx * (y + ny * z)
+                        if fill:
+                            cell_prims[cursor[cell]] = prim
+                            cursor[cell] += 1
+                        else:
+                            counts[cell] += 1
 
 
 def build_grid(bounds, kind: int, geom: np.ndarray, res: np.ndarray, exact: bool) -> GridArrays:
@@ -93,14 +129,18 @@ def build_grid(bounds, kind: int, geom: np.ndarray, res: np.ndarray, exact: bool
     res = np.asarray(res, dtype=np.int64)
     cell_size = (hi - lo) / res
     n_cells = int(res.prod())
-    counts = np.zeros(n_cells, dtype=np.int64)
+    slab_depth = max(1, int(res[2]) // (8 * thread_count()))
+    n_slabs = -(-int(res[2]) // slab_depth)
+    slab_first, slab_prims = _z_slabs(bounds.lo, bounds.hi, lo, cell_size, res, slab_depth, n_slabs)
+    counts = np.zeros(n_cells, dtype=np.int32)
     unused = np.zeros(0, dtype=np.int64)
-    _insert(bounds.lo, bounds.hi, kind, geom, exact, lo, cell_size, res, counts, unused,
-            np.zeros(0, dtype=np.int32), False)
+    _insert(bounds.lo, bounds.hi, kind, geom, exact, lo, cell_size, res, slab_depth, slab_first, slab_prims,
+            counts, unused, np.zeros(0, dtype=np.int32), False)
     cell_first = np.zeros(n_cells + 1, dtype=np.int64)
     np.cumsum(counts, out=cell_first[1:])
     del counts
     cell_prims = np.empty(int(cell_first[-1]), dtype=np.int32)
     cursor = cell_first[:-1].copy()
-    _insert(bounds.lo, bounds.hi, kind, geom, exact, lo, cell_size, res, unused, cursor, cell_prims, True)
+    _insert(bounds.lo, bounds.hi, kind, geom, exact, lo, cell_size, res, slab_depth, slab_first, slab_prims,
+            unused, cursor, cell_prims, True)
     return GridArrays(lo, hi, res, cell_size, cell_first, cell_prims)

@@ -1,0 +1,84 @@
+"""Shared fixtures: real meshes, sphere scenes, the brute-force oracle and adversarial rays."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import rayaccel as ra
+
+
+@pytest.fixture(scope="session")
+def bunny():
+    return ra.load_scene("bunny")
+
+
+@pytest.fixture(scope="session")
+def small_dragon():
+    return ra.load_scene("dragon-11k")
+
+
+@pytest.fixture(scope="session")
+def closed_sphere_mesh():
+    return ra.load_scene("sphere")
+
+
+@pytest.fixture(scope="session")
+def spheres():
+    return ra.random_spheres(3000, seed=7)
+
+
+def camera_rays(scene, size):
+    b = scene.bounds()
+    return ra.Camera.framing(b.scene_lo, b.scene_hi).rays(size, size)
+
+
+def random_rays(scene, n, seed=0):
+    """Incoherent rays: origins in a box around the scene, random directions."""
+    rng = np.random.default_rng(seed)
+    b = scene.bounds()
+    lo, hi = b.scene_lo, b.scene_hi
+    pad = 0.3 * (hi - lo)
+    origins = rng.uniform(lo - pad, hi + pad, size=(n, 3))
+    directions = rng.normal(size=(n, 3))
+    return origins, directions
+
+
+def vertex_and_edge_rays(mesh, n, seed=0):
+    """Rays from outside aimed exactly at mesh vertices and edge midpoints."""
+    rng = np.random.default_rng(seed)
+    b = mesh.bounds()
+    center = 0.5 * (b.scene_lo + b.scene_hi)
+    radius = np.linalg.norm(b.scene_hi - b.scene_lo)
+    faces = mesh.faces[rng.integers(0, len(mesh.faces), n)]
+    targets = mesh.vertices[faces[:, 0]].copy()
+    half = n // 2
+    targets[:half] = 0.5 * (mesh.vertices[faces[:half, 0]] + mesh.vertices[faces[:half, 1]])
+    directions_out = rng.normal(size=(n, 3))
+    directions_out /= np.linalg.norm(directions_out, axis=1, keepdims=True)
+    origins = center + 2.0 * radius * directions_out
+    return origins, targets - origins
+
+
+def axis_parallel_rays(scene, n, seed=0):
+    """Rays along +-x, +-y, +-z with components of +0 and -0, from around the scene."""
+    rng = np.random.default_rng(seed)
+    b = scene.bounds()
+    lo, hi = b.scene_lo, b.scene_hi
+    origins = rng.uniform(lo - 0.1 * (hi - lo), hi + 0.1 * (hi - lo), size=(n, 3))
+    directions = np.zeros((n, 3))
+    axis = rng.integers(0, 3, n)
+    directions[np.arange(n), axis] = rng.choice([-1.0, 1.0], n)
+    negative_zero = rng.random((n, 3)) < 0.5
+    directions[(directions == 0) & negative_zero] = -0.0
+    return origins, directions
+
+
+def assert_same_hits(reference, hits):
+    """Hit for hit: the same primitive, the same distance and barycentrics."""
+    np.testing.assert_array_equal(hits.prim, reference.prim)
+    hit = reference.prim >= 0
+    np.testing.assert_allclose(hits.t[hit], reference.t[hit], rtol=1e-12, atol=0)
+    np.testing.assert_allclose(hits.u[hit], reference.u[hit], rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(hits.v[hit], reference.v[hit], rtol=1e-9, atol=1e-12)
+    assert np.isinf(hits.t[~hit]).all()
