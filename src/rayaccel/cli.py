@@ -1,0 +1,273 @@
+"""The ``rayaccel`` command: demo, render, stats, experiments, calibration."""
+
+from __future__ import annotations
+
+import argparse
+import ast
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["main"]
+
+
+class CliError(Exception):
+    """A bad argument, reported as one line."""
+
+
+def _parse_options(pairs) -> dict:
+    options = {}
+    for pair in pairs or []:
+        if "=" not in pair:
+            raise CliError(f"option {pair!r} must look like key=value")
+        key, text = pair.split("=", 1)
+        try:
+            value = ast.literal_eval(text)
+        except (ValueError, SyntaxError):
+            value = text
+        options[key.strip().replace("-", "_")] = value
+    return options
+
+
+def _parse_vector(text: str, name: str) -> np.ndarray:
+    try:
+        values = [float(x) for x in text.split(",")]
+    except ValueError:
+        raise CliError(f"{name} must be three comma-separated numbers, got {text!r}") from None
+    if len(values) != 3 or not np.isfinite(values).all():
+        raise CliError(f"{name} must be three finite comma-separated numbers, got {text!r}")
+    return np.array(values)
+
+
+def _load(spec: str, quiet: bool):
+    from ._progress import status
+    from .scene import load_scene
+
+    with status(f"loading {spec}", enabled=not quiet):
+        return load_scene(spec)
+
+
+def _build(scene, method: str, options: dict, quiet: bool):
+    from ._progress import status
+    from .structures.registry import build
+
+    with status(f"building {method} over {len(scene):,} primitives", enabled=not quiet):
+        try:
+            return build(scene, method, **options)
+        except TypeError as exc:
+            raise CliError(f"bad option for {method}: {exc}") from None
+
+
+def _render(accel, args, quiet: bool, width: int, height: int):
+    from ._progress import progress_bar
+    from .rays import Camera
+    from .render import default_camera, render
+
+    camera = default_camera(accel.scene)
+    if getattr(args, "eye", None) or getattr(args, "target", None):
+        eye = _parse_vector(args.eye, "--eye") if args.eye else camera.eye
+        target = _parse_vector(args.target, "--target") if args.target else camera.target
+        camera = Camera(eye, target, fov=args.fov)
+    elif getattr(args, "fov", None) and args.fov != 40.0:
+        camera = Camera(camera.eye, camera.target, fov=args.fov)
+    lights = None
+    if getattr(args, "light", None):
+        lights = np.array([_parse_vector(text, "--light") for text in args.light])
+    shadows = not getattr(args, "no_shadows", False)
+    with progress_bar(f"rendering {width}x{height} with {accel.method}", height, enabled=not quiet) as advance:
+        return render(accel, camera, width, height, lights, shadows=shadows, progress=advance)
+
+
+def _write_images(result, out: Path, heatmap: str | None, title: str) -> list[Path]:
+    from .render import save_heatmap, save_png
+
+    written = [save_png(result.image, out)]
+    if heatmap in ("nodes", "both"):
+        written.append(save_heatmap(result.nodes, out.with_name(out.stem + "-nodes.png"), "nodes or cells visited", title))
+    if heatmap in ("tests", "both"):
+        written.append(save_heatmap(result.tests, out.with_name(out.stem + "-tests.png"), "primitive tests", title))
+    return written
+
+
+def _cmd_render(args) -> None:
+    scene = _load(args.scene, args.quiet)
+    accel = _build(scene, args.method, _parse_options(args.option), args.quiet)
+    width = args.width or args.size
+    height = args.height or args.size
+    result = _render(accel, args, args.quiet, width, height)
+    out = Path(args.out or f"{Path(args.scene).stem.replace(':', '-')}-{args.method}.png")
+    for path in _write_images(result, out, args.heatmap, f"{args.scene}, {args.method}"):
+        print(f"wrote {path}")
+    print(f"{accel.method}: build {accel.build_seconds:.3f} s, primary {result.mrays_per_second:.2f} Mrays/s, "
+          f"shadow rays {result.shadow_rays:,} in {result.shadow_seconds:.3f} s")
+
+
+def _stats_table(rows: list[dict], title: str):
+    from rich.table import Table
+
+    table = Table(title=title)
+    table.add_column("statistic")
+    for row in rows:
+        table.add_column(str(row.get("label", row["method"])), justify="right")
+    keys = [k for k in rows[0] if k not in ("method", "label")]
+    for key in keys:
+        cells = []
+        for row in rows:
+            value = row.get(key, "")
+            cells.append(f"{value:,.4g}" if isinstance(value, float) else f"{value:,}" if isinstance(value, int) else str(value))
+        table.add_row(key, *cells)
+    return table
+
+
+def _cmd_stats(args) -> None:
+    from rich.console import Console
+
+    scene = _load(args.scene, args.quiet)
+    accel = _build(scene, args.method, _parse_options(args.option), args.quiet)
+    Console().print(_stats_table([accel.stats()], f"{args.scene} ({len(scene):,} primitives)"))
+
+
+def _cmd_demo(args) -> None:
+    from rich.console import Console
+    from rich.table import Table
+
+    from .structures.registry import methods
+
+    console = Console()
+    scene = _load(args.scene, args.quiet)
+    out_dir = Path(args.out)
+    table = Table(title=f"rayaccel demo: {args.scene}, {len(scene):,} primitives, closest-hit primary rays")
+    for column in ("method", "build s", "image", "Mrays/s", "cells or nodes/ray", "tests/ray", "shadow Mrays/s"):
+        table.add_column(column, justify="left" if column == "method" else "right")
+    written = []
+    for method in methods():
+        accel = _build(scene, method, {}, args.quiet)
+        size = args.size
+        if method == "none":
+            # brute force costs n tests per ray: keep it to about 1e9 tests
+            size = int(min(args.size, max(32, np.sqrt(1e9 / len(scene) / 2))))
+        result = _render(accel, args, args.quiet, size, size)
+        out = out_dir / f"{method}.png"
+        files = _write_images(result, out, "both", f"{args.scene}, {method}")
+        shadow_rate = result.shadow_rays / max(result.shadow_seconds, 1e-12) / 1e6
+        table.add_row(method, f"{accel.build_seconds:.3f}", f"{size}x{size}", f"{result.mrays_per_second:.3g}",
+                      f"{result.nodes.mean():.1f}", f"{result.tests.mean():.1f}", f"{shadow_rate:.3g}")
+        written += files
+    console.print(table)
+    console.print("brute force renders a smaller image: it tests every primitive for every ray")
+    console.print(f"images in {out_dir.resolve()}: " + ", ".join(p.name for p in written))
+
+
+def _cmd_experiment(args) -> None:
+    from ._progress import progress_bar
+
+    if args.name == "grid-vs-none":
+        from .experiments import grid_vs_none
+
+        sizes = [n for n in (10, 100, 1_000, 10_000, 100_000, 1_000_000, 10_000_000) if n <= args.max_n]
+        if not sizes:
+            raise CliError("--max-n must be at least 10")
+        with progress_bar("grid vs no grid", len(sizes), enabled=not args.quiet) as advance:
+            rows = grid_vs_none.run(sizes, image_size=args.size, progress=advance)
+        table, plot = grid_vs_none.write_report(rows, args.out, args.size)
+        print(table.read_text())
+        print(f"wrote {table} and {plot}")
+
+
+def _cmd_calibrate(args) -> None:
+    from .scene import SPHERE, TRIANGLE
+    from .structures.grid.calibrate import cache_path, cost_ratio
+
+    for name, kind in (("triangle", TRIANGLE), ("sphere", SPHERE)):
+        ratio = cost_ratio(kind, refresh=True)
+        print(f"{name}: C_i / C_c = {ratio:.2f}  ->  cost-model grid has {2 * ratio:.1f} cells per primitive")
+    print(f"cached in {cache_path()}")
+
+
+def _cmd_methods(args) -> None:
+    from .scene import builtin_scenes
+    from .structures.registry import build_class, methods
+
+    for method in methods():
+        print(f"{method:12s} {(build_class(method).__doc__ or '').strip().splitlines()[0]}")
+    print("scenes: " + ", ".join(builtin_scenes()) + ", or a mesh file (OBJ, PLY, STL, OFF, optionally .gz)")
+
+
+def _parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="rayaccel", description="Ray-tracing acceleration structures.")
+    parser.add_argument("--quiet", action="store_true", help="no progress display")
+    parser.add_argument("--threads", type=int, help="threads for parallel kernels (default: all cores)")
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    def camera_args(p):
+        p.add_argument("--eye", help="camera position x,y,z (default: automatic framing)")
+        p.add_argument("--target", help="point looked at x,y,z")
+        p.add_argument("--fov", type=float, default=40.0, help="vertical field of view in degrees")
+        p.add_argument("--light", action="append", help="point light x,y,z (repeatable)")
+        p.add_argument("--no-shadows", action="store_true", help="skip shadow rays")
+
+    demo = sub.add_parser("demo", help="render the default scene with every structure and compare them")
+    demo.add_argument("--scene", default="bunny")
+    demo.add_argument("--size", type=int, default=512)
+    demo.add_argument("--out", default="rayaccel-demo")
+    camera_args(demo)
+    demo.set_defaults(func=_cmd_demo)
+
+    render = sub.add_parser("render", help="render a scene to PNG, optionally with cost heatmaps")
+    render.add_argument("scene", help="mesh file, built-in mesh name, or spheres:N")
+    render.add_argument("--method", default="grid")
+    render.add_argument("-o", "--option", action="append", help="structure option key=value (repeatable)")
+    render.add_argument("--size", type=int, default=512)
+    render.add_argument("--width", type=int)
+    render.add_argument("--height", type=int)
+    render.add_argument("--heatmap", choices=["nodes", "tests", "both"], help="also write cost heatmaps")
+    render.add_argument("--out", help="output PNG (default: SCENE-METHOD.png)")
+    camera_args(render)
+    render.set_defaults(func=_cmd_render)
+
+    stats = sub.add_parser("stats", help="print the literature's statistics of a structure")
+    stats.add_argument("scene")
+    stats.add_argument("--method", default="grid")
+    stats.add_argument("-o", "--option", action="append", help="structure option key=value (repeatable)")
+    stats.set_defaults(func=_cmd_stats)
+
+    experiment = sub.add_parser("experiment", help="reproduce a lecture experiment")
+    experiment.add_argument("name", choices=["grid-vs-none"])
+    experiment.add_argument("--max-n", type=int, default=1_000_000, help="largest scene size")
+    experiment.add_argument("--size", type=int, default=512, help="image width and height")
+    experiment.add_argument("--out", default="rayaccel-out", help="folder for the table and plot")
+    experiment.set_defaults(func=_cmd_experiment)
+
+    calibrate = sub.add_parser("calibrate", help="measure C_i and C_c for the grid cost model")
+    calibrate.set_defaults(func=_cmd_calibrate)
+
+    listing = sub.add_parser("methods", help="list methods and built-in scenes")
+    listing.set_defaults(func=_cmd_methods)
+    return parser
+
+
+def main(argv=None) -> int:
+    parser = _parser()
+    args = parser.parse_args(argv)
+    for name in ("size", "width", "height"):
+        value = getattr(args, name, None)
+        if value is not None and not 1 <= value <= 16384:
+            parser.error(f"--{name} must lie in 1 .. 16384, got {value}")
+    from .scene import MeshLoadError
+
+    try:
+        if args.threads is not None:
+            from ._jit import set_threads
+
+            set_threads(args.threads)
+        args.func(args)
+    except (CliError, MeshLoadError, ValueError, TypeError) as exc:
+        print(f"rayaccel: error: {exc}", file=sys.stderr)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())
