@@ -1,0 +1,132 @@
+"""Bad input gets a clear exception naming the problem."""
+
+from __future__ import annotations
+
+import gzip
+
+import numpy as np
+import pytest
+
+import rayaccel as ra
+
+TRIANGLE = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0]])
+
+
+@pytest.mark.parametrize(
+    "vertices, faces, error, words",
+    [
+        ([[0, 0, np.nan], [1, 0, 0], [0, 1, 0]], [[0, 1, 2]], ValueError, "NaN or infinite"),
+        ([[0, 0, np.inf], [1, 0, 0], [0, 1, 0]], [[0, 1, 2]], ValueError, "NaN or infinite"),
+        ([[0, 0], [1, 0], [0, 1]], [[0, 1, 2]], ValueError, "shape"),
+        (TRIANGLE, [[0, 1, 3]], ValueError, "out of range"),
+        (TRIANGLE, [[0, 1, -1]], ValueError, "out of range"),
+        (TRIANGLE, np.zeros((0, 3), int), ValueError, "empty"),
+        (np.zeros((0, 3)), [[0, 1, 2]], ValueError, "empty"),
+        (TRIANGLE, [[0, 1.5, 2]], TypeError, "integer"),
+        (np.array([["a", "b", "c"]] * 3), [[0, 1, 2]], TypeError, "real numbers"),
+        (TRIANGLE, [[0, 1, 2, 0]], ValueError, "shape"),
+    ],
+)
+def test_bad_meshes(vertices, faces, error, words):
+    with pytest.raises(error, match=words):
+        ra.TriangleMesh(vertices, faces)
+
+
+@pytest.mark.parametrize(
+    "centers, radii, words",
+    [
+        ([[0, 0, 0]], [-1.0], "positive"),
+        ([[0, 0, 0]], [0.0], "positive"),
+        ([[0, 0, 0]], [np.nan], "NaN"),
+        ([[0, 0, np.nan]], [1.0], "NaN"),
+        ([[0, 0, 0]], [1.0, 2.0], "shape"),
+        (np.zeros((0, 3)), [], "empty"),
+    ],
+)
+def test_bad_spheres(centers, radii, words):
+    with pytest.raises(ValueError, match=words):
+        ra.Spheres(centers, radii)
+
+
+def test_random_spheres_arguments():
+    with pytest.raises(ValueError, match="at least 1"):
+        ra.random_spheres(0)
+    with pytest.raises(TypeError):
+        ra.random_spheres(2.5)
+    with pytest.raises(ValueError, match="fill"):
+        ra.random_spheres(10, fill=1.5)
+
+
+@pytest.fixture(scope="module")
+def accel():
+    return ra.build(ra.TriangleMesh(TRIANGLE, [[0, 1, 2]]), "grid")
+
+
+@pytest.mark.parametrize(
+    "origins, directions, kwargs, error, words",
+    [
+        ([[0, 0, -1]], [[0, 0, 0]], {}, ValueError, "zero length"),
+        ([[0, 0, np.nan]], [[0, 0, 1]], {}, ValueError, "NaN"),
+        ([[0, 0, -1]], [[0, 0, np.inf]], {}, ValueError, "infinite"),
+        ([[0, 0, -1], [0, 0, -1]], [[0, 0, 1]] * 3, {}, ValueError, "same shape"),
+        ([[0, 0]], [[0, 1]], {}, ValueError, "shape"),
+        ([[0, 0, -1]], [[0, 0, 1]], {"t_min": np.nan}, ValueError, "t_min contains NaN"),
+        ([[0, 0, -1]], [[0, 0, 1]], {"t_max": [1.0, 2.0]}, ValueError, "t_max must be"),
+        ([["x", "y", "z"]], [[0, 0, 1]], {}, TypeError, "real numbers"),
+    ],
+)
+def test_bad_rays(accel, origins, directions, kwargs, error, words):
+    with pytest.raises(error, match=words):
+        accel.intersect(origins, directions, **kwargs)
+
+
+def test_empty_ray_batch_and_single_origin(accel):
+    hits = accel.intersect(np.zeros((0, 3)), np.zeros((0, 3)))
+    assert hits.t.shape == (0,)
+    hits = accel.intersect([0.2, 0.2, -1.0], [[0, 0, 1.0], [0, 0, -1.0]])
+    assert hits.prim.tolist() == [0, -1]
+
+
+def test_bad_build_arguments():
+    mesh = ra.TriangleMesh(TRIANGLE, [[0, 1, 2]])
+    with pytest.raises(ValueError, match="unknown method"):
+        ra.build(mesh, "bsp")
+    with pytest.raises(TypeError):
+        ra.build(mesh, "grid", dense=3)
+    with pytest.raises(ValueError, match="insert"):
+        ra.build(mesh, "grid", insert="fuzzy")
+    with pytest.raises(ValueError, match="density"):
+        ra.build(mesh, "grid", density=-1)
+    with pytest.raises(ValueError, match="resolution"):
+        ra.build(mesh, "grid", resolution=(0, 2, 2))
+    with pytest.raises(ValueError, match="resolution"):
+        ra.build(mesh, "grid", resolution="fine")
+    with pytest.raises(TypeError, match="scene"):
+        ra.build(np.zeros((3, 3)), "grid")
+
+
+def test_unreadable_files(tmp_path):
+    with pytest.raises(ra.MeshLoadError, match="not found"):
+        ra.load_mesh(tmp_path / "missing.obj")
+    truncated = tmp_path / "bunny.obj.gz"
+    truncated.write_bytes(gzip.compress(b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n" * 100)[:60])
+    with pytest.raises(ra.MeshLoadError, match="cannot read"):
+        ra.load_mesh(truncated)
+    garbage = tmp_path / "garbage.ply"
+    garbage.write_bytes(b"ply\nformat binary_little_endian 1.0\nelement vertex 1000\nproperty float x\nend_header\n\x00\x01")
+    with pytest.raises(ra.MeshLoadError):
+        ra.load_mesh(garbage)
+    empty = tmp_path / "empty.obj"
+    empty.write_text("# nothing here\n")
+    with pytest.raises(ra.MeshLoadError, match="no triangles"):
+        ra.load_mesh(empty)
+    bad_index = tmp_path / "bad.off"
+    bad_index.write_text("OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 7\n")
+    with pytest.raises(ra.MeshLoadError):
+        ra.load_mesh(bad_index)
+    with pytest.raises(ra.MeshLoadError, match="unsupported"):
+        ra.load_mesh(tmp_path / "x.fbx") if (tmp_path / "x.fbx").write_text("x") else None
+    with pytest.raises(TypeError):
+        ra.load_mesh(42)
+    with pytest.raises(ValueError, match="unknown scene"):
+        ra.load_scene("no-such-scene")

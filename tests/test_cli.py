@@ -1,0 +1,60 @@
+"""The command line: every subcommand end to end on small inputs, and one-line errors."""
+
+from __future__ import annotations
+
+import numpy as np
+from PIL import Image
+
+from rayaccel.cli import main
+
+
+def test_render_with_heatmaps(tmp_path, capsys):
+    out = tmp_path / "balls.png"
+    assert main(["--quiet", "render", "spheres:300", "--size", "48", "--heatmap", "both", "--out", str(out),
+                 "-o", "density=4", "-o", "insert=exact"]) == 0
+    image = np.asarray(Image.open(out))
+    assert image.shape == (48, 48, 3) and image.std() > 5
+    assert (tmp_path / "balls-nodes.png").exists() and (tmp_path / "balls-tests.png").exists()
+    assert "Mrays/s" in capsys.readouterr().out
+
+
+def test_render_with_camera_and_lights(tmp_path):
+    out = tmp_path / "teapot.png"
+    assert main(["--quiet", "render", "teapot", "--size", "32", "--eye", "0,3,9", "--target", "0,1,0",
+                 "--light", "5,5,5", "--light=-5,5,5", "--out", str(out)]) == 0
+    assert out.exists()
+
+
+def test_stats(capsys):
+    assert main(["--quiet", "stats", "dragon-11k", "--method", "grid"]) == 0
+    out = capsys.readouterr().out
+    assert "references" in out and "expected_cost" in out and "avg_nodes_per_ray" in out
+
+
+def test_demo(tmp_path, capsys):
+    assert main(["--quiet", "demo", "--scene", "teapot", "--size", "40", "--out", str(tmp_path)]) == 0
+    assert (tmp_path / "grid.png").exists() and (tmp_path / "none.png").exists()
+    out = capsys.readouterr().out
+    assert "grid" in out and "none" in out
+
+
+def test_experiment(tmp_path, capsys):
+    assert main(["--quiet", "experiment", "grid-vs-none", "--max-n", "1000", "--size", "24", "--out", str(tmp_path)]) == 0
+    table = (tmp_path / "grid-vs-none.md").read_text()
+    assert "| 1,000 |" in table and "| 10 |" in table
+    assert (tmp_path / "grid-vs-none.png").exists()
+
+
+def test_methods(capsys):
+    assert main(["methods"]) == 0
+    assert "grid" in capsys.readouterr().out
+
+
+def test_errors_are_one_line(tmp_path, capsys):
+    assert main(["--quiet", "render", str(tmp_path / "missing.obj")]) == 2
+    assert main(["--quiet", "render", "spheres:10", "--method", "bsp"]) == 2
+    assert main(["--quiet", "render", "spheres:10", "-o", "bogus=1"]) == 2
+    assert main(["--quiet", "render", "spheres:10", "--eye", "1,2"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("rayaccel: error:") == 4
+    assert all(line.startswith("rayaccel: error:") for line in err.strip().splitlines())
