@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import threading
 import time
 
 import numba
@@ -36,7 +37,9 @@ class UniformGrid(Accelerator):
         fewer tests per ray, mostly for long thin triangles).
     mailbox : bool, default True
         Test each primitive at most once per ray even where it spans several
-        cells; False shows what that saves.
+        cells; False shows what that saves. The mailboxes (one int64 per
+        primitive and thread) are allocated on the first query and reused;
+        concurrent queries from several Python threads each get their own.
     """
 
     method = "grid"
@@ -54,6 +57,9 @@ class UniformGrid(Accelerator):
         self.grid = build_grid(bounds, scene.kind, scene.geometry, res, insert == "exact")
         self.build_seconds = time.perf_counter() - start
         self.mailbox = bool(mailbox)
+        self._mailbox_lock = threading.Lock()
+        self._free_mailboxes = []
+        self._next_ray_id = 0
 
     def _resolution(self, resolution, density, extent, n):
         if resolution is None:
@@ -71,15 +77,32 @@ class UniformGrid(Accelerator):
             raise ValueError(f"resolution {tuple(res)} has more than 2**27 cells")
         return res.astype(np.int64)
 
+    def _take_mailbox(self, n_rays: int):
+        """A mailbox no other call is using, and a fresh range of ray ids to stamp it with."""
+        with self._mailbox_lock:
+            mailbox = self._free_mailboxes.pop() if self._free_mailboxes else None
+            base = self._next_ray_id
+            self._next_ray_id += n_rays
+        if mailbox is None:
+            mailbox = np.full((numba.config.NUMBA_NUM_THREADS, len(self.scene)), -1, dtype=np.int64)
+        return mailbox, base
+
     def _trace(self, batch, any_hit, t, prim, u, v, work):
         g = self.grid
-        if self.mailbox:
-            mailbox = np.full((numba.config.NUMBA_NUM_THREADS, len(self.scene)), -1, dtype=np.int64)
-        else:
-            mailbox = np.zeros((0, 0), dtype=np.int64)
-        grid_trace_kernel(g.lo, g.hi, g.res, g.cell_size, g.cell_first, g.cell_prims,
-                          self.scene.kind, self.scene.geometry, batch.origins, batch.directions,
-                          batch.t_min, batch.t_max, any_hit, mailbox, t, prim, u, v, work)
+        if not self.mailbox:
+            grid_trace_kernel(g.lo, g.hi, g.res, g.cell_size, g.cell_first, g.cell_prims,
+                              self.scene.kind, self.scene.geometry, batch.origins, batch.directions,
+                              batch.t_min, batch.t_max, any_hit, np.zeros((0, 0), dtype=np.int64), 0,
+                              t, prim, u, v, work)
+            return
+        mailbox, base = self._take_mailbox(len(batch.origins))
+        try:
+            grid_trace_kernel(g.lo, g.hi, g.res, g.cell_size, g.cell_first, g.cell_prims,
+                              self.scene.kind, self.scene.geometry, batch.origins, batch.directions,
+                              batch.t_min, batch.t_max, any_hit, mailbox, base, t, prim, u, v, work)
+        finally:
+            with self._mailbox_lock:
+                self._free_mailboxes.append(mailbox)
 
     def _structure_stats(self) -> dict:
         g = self.grid

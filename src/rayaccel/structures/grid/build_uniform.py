@@ -16,7 +16,8 @@ goes only into the cells it really overlaps (triangle-box SAT, sphere-box
 distance); otherwise into every cell its bounding box overlaps. Both passes
 run in parallel over slabs of cell layers along z, each slab with its own
 bucket of the primitives that reach it, so writes never collide and stay
-within a cache-sized part of the cell arrays.
+within a cache-sized part of the cell arrays. Offsets and references are
+int32, which halves the memory a large grid touches.
 """
 
 from __future__ import annotations
@@ -88,8 +89,9 @@ def _z_slabs(prim_lo, prim_hi, grid_lo, cell_size, res, slab_depth, n_slabs):
 
 @parallel_kernel
 def _insert(prim_lo, prim_hi, kind, geom, exact, grid_lo, cell_size, res, slab_depth, slab_first, slab_prims,
-            counts, cursor, cell_prims, fill):
-    """Visit every (primitive, cell) pair that overlaps; count it, or with ``fill`` write it.
+            row_end, cell_prims, fill):
+    """Visit every (primitive, cell) pair that overlaps: count it in ``row_end``, or with
+    ``fill`` write it just before ``row_end`` of its cell and move that end down.
 
     Slabs of cell layers run in parallel; each writes only to its own cells.
     """
@@ -117,10 +119,10 @@ def _insert(prim_lo, prim_hi, kind, geom, exact, grid_lo, cell_size, res, slab_d
                                 continue
                         cell = x + nx * (y + ny * z)
                         if fill:
-                            cell_prims[cursor[cell]] = prim
-                            cursor[cell] += 1
+                            row_end[cell] -= 1
+                            cell_prims[row_end[cell]] = prim
                         else:
-                            counts[cell] += 1
+                            row_end[cell] += 1
 
 
 def build_grid(bounds, kind: int, geom: np.ndarray, res: np.ndarray, exact: bool) -> GridArrays:
@@ -132,15 +134,19 @@ def build_grid(bounds, kind: int, geom: np.ndarray, res: np.ndarray, exact: bool
     slab_depth = max(1, int(res[2]) // (8 * thread_count()))
     n_slabs = -(-int(res[2]) // slab_depth)
     slab_first, slab_prims = _z_slabs(bounds.lo, bounds.hi, lo, cell_size, res, slab_depth, n_slabs)
-    counts = np.zeros(n_cells, dtype=np.int32)
-    unused = np.zeros(0, dtype=np.int64)
+    # cell_first[c + 1] counts cell c, then (prefix sum) holds the end of its row;
+    # the fill pass decrements it to the row's start, and a shift by one
+    # entry turns the ends of the previous rows into the starts.
+    cell_first = np.zeros(n_cells + 1, dtype=np.int32)
     _insert(bounds.lo, bounds.hi, kind, geom, exact, lo, cell_size, res, slab_depth, slab_first, slab_prims,
-            counts, unused, np.zeros(0, dtype=np.int32), False)
-    cell_first = np.zeros(n_cells + 1, dtype=np.int64)
-    np.cumsum(counts, out=cell_first[1:])
-    del counts
-    cell_prims = np.empty(int(cell_first[-1]), dtype=np.int32)
-    cursor = cell_first[:-1].copy()
+            cell_first[1:], np.zeros(0, dtype=np.int32), False)
+    n_references = int(cell_first.sum(dtype=np.int64))
+    if n_references >= np.iinfo(np.int32).max:
+        raise ValueError(f"the grid would hold {n_references:,} references, more than 2**31; use fewer cells")
+    np.cumsum(cell_first, out=cell_first)
+    cell_prims = np.empty(n_references, dtype=np.int32)
     _insert(bounds.lo, bounds.hi, kind, geom, exact, lo, cell_size, res, slab_depth, slab_first, slab_prims,
-            unused, cursor, cell_prims, True)
+            cell_first[1:], cell_prims, True)
+    cell_first[:-1] = cell_first[1:].copy()
+    cell_first[-1] = n_references
     return GridArrays(lo, hi, res, cell_size, cell_first, cell_prims)

@@ -5,8 +5,8 @@ cell has the size ``cell_size = (hi - lo) / res``. Cell ``(x, y, z)`` has the
 flat index ``x + nx * (y + ny * z)``.
 
 Objects per cell are stored as compressed rows: the references of cell ``c``
-are ``cell_prims[cell_first[c] : cell_first[c + 1]]``, ascending primitive
-indices. ``cell_first`` has ``n_cells + 1`` entries, the last being the number
+are ``cell_prims[cell_first[c] : cell_first[c + 1]]``, in no particular
+order. ``cell_first`` has ``n_cells + 1`` entries, the last being the number
 of references; a primitive that overlaps k cells is referenced k times.
 
 To walk it: clip the ray to ``lo``..``hi``, find the cell of the entry point,
@@ -29,7 +29,7 @@ class GridArrays(NamedTuple):
     hi: np.ndarray          # (3,) float64, the grid's upper corner
     res: np.ndarray         # (3,) int64, cells per axis
     cell_size: np.ndarray   # (3,) float64
-    cell_first: np.ndarray  # (n_cells + 1,) int64 row offsets
+    cell_first: np.ndarray  # (n_cells + 1,) int32 row offsets
     cell_prims: np.ndarray  # (n_references,) int32 primitive indices
 
     @property

@@ -43,9 +43,14 @@ def _axis_start(o, d, t_enter, lo, size, n):
 
 @parallel_kernel
 def grid_trace_kernel(grid_lo, grid_hi, res, cell_size, cell_first, cell_prims, kind, geom,
-                      origins, directions, t_min, t_max, any_hit, mailbox,
+                      origins, directions, t_min, t_max, any_hit, mailbox, ray_id_base,
                       out_t, out_prim, out_u, out_v, work):
-    """Trace every ray; ``mailbox`` is (threads, n_prims) filled with -1, or empty to disable."""
+    """Trace every ray.
+
+    ``mailbox`` is (threads, n_prims), or empty to disable mailboxing; ray ``i``
+    stamps it with ``ray_id_base + i``, so a mailbox can be reused by later
+    calls without clearing as long as each call gets a fresh range of ids.
+    """
     use_mailbox = mailbox.shape[0] > 0
     nx, ny, nz = res[0], res[1], res[2]
     count_work = work.shape[0] > 0
@@ -60,6 +65,7 @@ def grid_trace_kernel(grid_lo, grid_hi, res, cell_size, cell_first, cell_prims, 
         cy, step_y, next_y, delta_y = _axis_start(oy, dy, t_enter, grid_lo[1], cell_size[1], res[1])
         cz, step_z, next_z, delta_z = _axis_start(oz, dz, t_enter, grid_lo[2], cell_size[2], res[2])
         tid = thread_id() if use_mailbox else 0
+        stamp = ray_id_base + i
         best_t = t_max[i]
         best_prim = -1
         best_u = 0.0
@@ -73,10 +79,10 @@ def grid_trace_kernel(grid_lo, grid_hi, res, cell_size, cell_first, cell_prims, 
             for k in range(cell_first[flat], cell_first[flat + 1]):
                 prim = cell_prims[k]
                 if use_mailbox:
-                    if mailbox[tid, prim] == i:
+                    if mailbox[tid, prim] == stamp:
                         n_skips += 1
                         continue
-                    mailbox[tid, prim] = i
+                    mailbox[tid, prim] = stamp
                 n_tests += 1
                 t, u, v = intersect_prim(kind, geom, prim, ray, t_min[i], best_t)
                 if is_closer(t, prim, best_t, best_prim):

@@ -1,0 +1,116 @@
+"""Grid and brute force against Embree (embreex), same rays, same run.
+
+For each scene: build seconds and closest-hit Mrays/s on primary (pinhole
+camera) and incoherent rays, any-hit Mrays/s on primary rays, and the ratio of
+the grid's throughput to Embree's on 1 and 2 threads (embreex queries run on
+one thread; the 2-thread figure splits the rays over two Python threads, as
+embreex releases the GIL). Brute force is timed on a subset of the rays.
+Figures vary by +-30% on a shared machine: read the ratios, not the absolutes.
+
+    python benchmarks/bench_grid.py [--scenes bunny dragon] [--side 1024]
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from concurrent.futures import ThreadPoolExecutor
+
+import numpy as np
+from rich.console import Console
+from rich.table import Table
+
+sys.path.insert(0, str(__import__("pathlib").Path(__file__).parent))
+from _common import ensure_competitors, incoherent_rays, median_seconds, primary_rays  # noqa: E402
+
+import rayaccel as ra  # noqa: E402
+
+
+class EmbreeScene:
+    """embreex with float32 rays, on one thread or split over several Python threads."""
+
+    def __init__(self, mesh):
+        from embreex import rtcore_scene
+        from embreex.mesh_construction import TriangleMesh
+
+        start = time.perf_counter()
+        self.scene = rtcore_scene.EmbreeScene()
+        TriangleMesh(self.scene, mesh.vertices.astype(np.float32), mesh.faces.astype(np.int32))
+        self.scene.run(np.zeros((1, 3), np.float32), np.ones((1, 3), np.float32))  # commit (builds the BVH)
+        self.build_seconds = time.perf_counter() - start
+
+    def query(self, origins, directions, threads: int, kind: str = "INTERSECT"):
+        o = origins.astype(np.float32)
+        d = directions.astype(np.float32)
+        if threads == 1:
+            return self.scene.run(o, d, query=kind)
+        parts = np.array_split(np.arange(len(o)), threads)
+        with ThreadPoolExecutor(threads) as pool:
+            results = list(pool.map(lambda idx: self.scene.run(o[idx], d[idx], query=kind), parts))
+        return np.concatenate(results)
+
+
+def bench_scene(name: str, side: int, have_embree: bool, console: Console) -> list[dict]:
+    scene = ra.load_scene(name)
+    rays = {"primary": primary_rays(scene, side), "incoherent": incoherent_rays(scene, side * side)}
+    rows = []
+    grid = ra.build(scene, "grid")
+    build = median_seconds(lambda: ra.build(scene, "grid"), repeats=3)
+    row = {"scene": name, "method": "rayaccel grid", "build": build}
+    for label, (o, d) in rays.items():
+        row[label] = len(o) / median_seconds(lambda: grid.intersect(o, d)) / 1e6
+    o, d = rays["primary"]
+    row["any-hit"] = len(o) / median_seconds(lambda: grid.occluded(o, d)) / 1e6
+    rows.append(row)
+
+    brute = ra.build(scene, "none")
+    subset = max(64, int(2e9 / len(scene) / 50))
+    row = {"scene": name, "method": "rayaccel none (subset)", "build": brute.build_seconds}
+    for label, (o, d) in rays.items():
+        row[label] = subset / median_seconds(lambda: brute.intersect(o[:subset], d[:subset]), repeats=1) / 1e6
+    row["any-hit"] = subset / median_seconds(lambda: brute.occluded(o[:subset], d[:subset]), repeats=1) / 1e6
+    rows.append(row)
+
+    if have_embree:
+        embree = EmbreeScene(scene)
+        agreement = np.mean(embree.query(*rays["primary"], 1) == grid.intersect(*rays["primary"]).prim)
+        console.print(f"{name}: Embree and the grid report the same primitive for {agreement:.2%} of primary rays "
+                      "(float32 vs float64)")
+        for threads in (1, 2):
+            row = {"scene": name, "method": f"Embree (embreex), {threads} thread{'s' * (threads > 1)}",
+                   "build": median_seconds(lambda: EmbreeScene(scene), repeats=3)}
+            for label, (o, d) in rays.items():
+                row[label] = len(o) / median_seconds(lambda: embree.query(o, d, threads)) / 1e6
+            o, d = rays["primary"]
+            row["any-hit"] = len(o) / median_seconds(lambda: embree.query(o, d, threads, "OCCLUDED")) / 1e6
+            rows.append(row)
+    return rows
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--scenes", nargs="+", default=["bunny", "dragon"])
+    parser.add_argument("--side", type=int, default=1024, help="primary rays are side x side; as many incoherent")
+    args = parser.parse_args()
+    console = Console(width=200)
+    have_embree = ensure_competitors()
+    rows = []
+    for name in args.scenes:
+        with console.status(f"benchmarking {name}"):
+            rows += bench_scene(name, args.side, have_embree, console)
+    table = Table(title=f"closest hit, Mrays/s ({args.side}x{args.side} primary, as many incoherent); "
+                        "ratio = grid / Embree 2 threads")
+    for column in ("scene", "method", "build s", "primary", "incoherent", "any-hit primary", "ratio primary",
+                   "ratio incoherent", "ratio any-hit"):
+        table.add_column(column, justify="left" if column in ("scene", "method") else "right")
+    for row in rows:
+        reference = next((r for r in rows if r["scene"] == row["scene"] and r["method"].endswith("2 threads")), None)
+        ratios = [f"{row[k] / reference[k]:.3f}" if reference else "-" for k in ("primary", "incoherent", "any-hit")]
+        table.add_row(row["scene"], row["method"], f"{row['build']:.3f}", f"{row['primary']:.3g}",
+                      f"{row['incoherent']:.3g}", f"{row['any-hit']:.3g}", *ratios)
+    console.print(table)
+
+
+if __name__ == "__main__":
+    main()
