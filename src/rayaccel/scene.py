@@ -46,18 +46,13 @@ class MeshLoadError(ValueError):
 class PrimitiveBounds:
     """Axis-aligned boxes of a scene's primitives: ``lo``, ``hi`` and ``centroid``, each (n, 3)."""
 
-    __slots__ = ("lo", "hi", "centroid")
+    __slots__ = ("lo", "hi", "centroid", "scene_lo", "scene_hi")
 
     def __init__(self, lo: np.ndarray, hi: np.ndarray, centroid: np.ndarray):
         self.lo, self.hi, self.centroid = lo, hi, centroid
-
-    @property
-    def scene_lo(self) -> np.ndarray:
-        return self.lo.min(axis=0)
-
-    @property
-    def scene_hi(self) -> np.ndarray:
-        return self.hi.max(axis=0)
+        # column by column: numpy reduces a strided column faster than axis=0 of an (n, 3) array
+        self.scene_lo = np.array([lo[:, axis].min() for axis in range(3)])
+        self.scene_hi = np.array([hi[:, axis].max() for axis in range(3)])
 
 
 class TriangleMesh:

@@ -54,7 +54,7 @@ class UniformGrid(Accelerator):
         bounds = scene.bounds()
         lo, hi = grid_box(bounds.scene_lo, bounds.scene_hi)
         res = self._resolution(resolution, density, hi - lo, len(scene))
-        self.grid = build_grid(bounds, scene.kind, scene.geometry, res, insert == "exact")
+        self.grid = build_grid(bounds, lo, hi, scene.kind, scene.geometry, res, insert == "exact")
         self.build_seconds = time.perf_counter() - start
         self.mailbox = bool(mailbox)
         self._mailbox_lock = threading.Lock()

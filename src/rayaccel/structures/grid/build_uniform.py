@@ -125,9 +125,10 @@ def _insert(prim_lo, prim_hi, kind, geom, exact, grid_lo, cell_size, res, slab_d
                             row_end[cell] += 1
 
 
-def build_grid(bounds, kind: int, geom: np.ndarray, res: np.ndarray, exact: bool) -> GridArrays:
-    """Insert the primitives into a grid of ``res`` cells over their padded box."""
-    lo, hi = grid_box(bounds.scene_lo, bounds.scene_hi)
+def build_grid(bounds, lo: np.ndarray, hi: np.ndarray, kind: int, geom: np.ndarray, res: np.ndarray,
+               exact: bool) -> GridArrays:
+    """Insert the primitives into a grid of ``res`` cells over the box ``lo``..``hi``
+    (the scene box padded by :func:`grid_box`)."""
     res = np.asarray(res, dtype=np.int64)
     cell_size = (hi - lo) / res
     n_cells = int(res.prod())
