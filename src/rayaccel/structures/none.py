@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import time
 
-import numpy as np
 from numba import prange
 
 from .._jit import parallel_kernel
