@@ -5,10 +5,11 @@ from __future__ import annotations
 import importlib
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
+
+from rayaccel._timing import median_seconds  # noqa: F401  (re-exported for the scripts)
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -28,17 +29,6 @@ def ensure_competitors() -> bool:
     except ImportError:
         print("embreex is not available here; competitor columns are left out", flush=True)
         return False
-
-
-def median_seconds(run, repeats: int = 3) -> float:
-    """Median wall time of ``run()`` over ``repeats`` runs after one warm-up run."""
-    run()
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        run()
-        times.append(time.perf_counter() - start)
-    return float(np.median(times))
 
 
 def primary_rays(scene, side: int):

@@ -8,7 +8,7 @@ from .._jit import kernel
 from ..rays import Camera, Hits, RayCounters, prepare_rays
 from ..scene import SPHERE, Spheres, TriangleMesh
 
-__all__ = ["Accelerator", "is_closer"]
+__all__ = ["Accelerator", "is_closer", "store_hit"]
 
 
 @kernel
@@ -19,6 +19,16 @@ def is_closer(t, prim, best_t, best_prim):
     if t == np.inf:
         return False
     return best_prim < 0 or t < best_t or (t == best_t and prim < best_prim)
+
+
+@kernel
+def store_hit(i, t, prim, u, v, out_t, out_prim, out_u, out_v):
+    """Write ray ``i``'s best hit into the output arrays (left as a miss when ``prim < 0``)."""
+    if prim >= 0:
+        out_t[i] = t
+        out_prim[i] = prim
+        out_u[i] = u
+        out_v[i] = v
 
 
 class Accelerator:

@@ -8,7 +8,7 @@ from numba import prange
 
 from .._jit import parallel_kernel
 from ..geometry.primitive import intersect_prim, ray_setup
-from .base import Accelerator, is_closer
+from .base import Accelerator, is_closer, store_hit
 
 __all__ = ["BruteForce", "brute_force_kernel"]
 
@@ -30,11 +30,7 @@ def brute_force_kernel(kind, geom, origins, directions, t_min, t_max, any_hit, o
                 best_t, best_prim, best_u, best_v = t, prim, u, v
                 if any_hit:
                     break
-        if best_prim >= 0:
-            out_t[i] = best_t
-            out_prim[i] = best_prim
-            out_u[i] = best_u
-            out_v[i] = best_v
+        store_hit(i, best_t, best_prim, best_u, best_v, out_t, out_prim, out_u, out_v)
         if work.shape[0] > 0:
             work[i, 1] = tests
 

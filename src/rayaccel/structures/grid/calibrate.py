@@ -18,12 +18,12 @@ from __future__ import annotations
 import json
 import os
 import platform
-import time
 from pathlib import Path
 
 import numba
 import numpy as np
 
+from ..._timing import median_seconds
 from ...scene import SPHERE, TRIANGLE, Spheres, TriangleMesh
 
 __all__ = ["calibrate", "cost_ratio", "cache_path"]
@@ -38,16 +38,6 @@ def cache_path() -> Path:
 
 def _machine_key() -> str:
     return f"{platform.node()}|{platform.machine()}|{platform.processor()}|numba {numba.__version__}"
-
-
-def _median_seconds(run, repeats=5) -> float:
-    run()
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        run()
-        times.append(time.perf_counter() - start)
-    return float(np.median(times))
 
 
 def _sample_scene(kind: int, n: int, rng) -> TriangleMesh | Spheres:
@@ -74,7 +64,7 @@ def calibrate(kind: int) -> dict:
     scene = _sample_scene(kind, 256, rng)
     origins, directions = _box_crossing_rays(4096, rng)
     brute = build(scene, "none")
-    seconds = _median_seconds(lambda: brute.intersect(origins, directions))
+    seconds = median_seconds(lambda: brute.intersect(origins, directions))
     intersection = seconds / (len(origins) * len(scene))
 
     corner = _sample_scene(kind, 1, rng)
@@ -84,7 +74,7 @@ def calibrate(kind: int) -> dict:
     targets = lo + (hi - lo) * np.column_stack([np.full(4096, 1.5), rng.uniform(0, 1, (4096, 2))])
     directions = targets - origins
     cells = grid.intersect(origins, directions, counters=True).counters.nodes.sum()
-    seconds = _median_seconds(lambda: grid.intersect(origins, directions))
+    seconds = median_seconds(lambda: grid.intersect(origins, directions))
     cell_step = seconds / cells
     return {"intersection_seconds": intersection, "cell_step_seconds": cell_step,
             "ratio": intersection / cell_step}

@@ -24,7 +24,7 @@ from numba import prange
 from ..._jit import kernel, parallel_kernel, thread_id
 from ...geometry.box import clip_to_box
 from ...geometry.primitive import intersect_prim, ray_setup
-from ..base import is_closer
+from ..base import is_closer, store_hit
 
 __all__ = ["grid_trace_kernel"]
 
@@ -109,11 +109,7 @@ def grid_trace_kernel(grid_lo, grid_hi, res, cell_size, cell_first, cell_prims, 
                 if cz < 0 or cz >= nz:
                     break
                 next_z += delta_z
-        if best_prim >= 0:
-            out_t[i] = best_t
-            out_prim[i] = best_prim
-            out_u[i] = best_u
-            out_v[i] = best_v
+        store_hit(i, best_t, best_prim, best_u, best_v, out_t, out_prim, out_u, out_v)
         if count_work:
             work[i, 0] = n_cells
             work[i, 1] = n_tests
