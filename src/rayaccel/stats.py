@@ -33,15 +33,15 @@ def box_area(lo, hi) -> np.ndarray:
     return 2.0 * (e[..., 0] * e[..., 1] + e[..., 1] * e[..., 2] + e[..., 0] * e[..., 2])
 
 
-def surface_area_stats(root_lo, root_hi, step_areas, leaf_areas, leaf_counts,
+def surface_area_stats(root_area, step_areas, leaf_areas, leaf_counts,
                        traversal_cost: float = TRAVERSAL_COST, intersection_cost: float = INTERSECTION_COST) -> dict:
     """Expected steps, leaves, tests and cost per ray from node surface areas.
 
-    ``step_areas``: areas of the nodes whose visit is a traversal step (inner
-    nodes of a tree; every cell of a grid); ``leaf_areas``/``leaf_counts``: area
-    and primitive count of each leaf or cell.
+    ``root_area``: area of the root volume; ``step_areas``: areas of the nodes
+    whose visit is a traversal step (inner nodes of a tree; every cell of a
+    grid); ``leaf_areas``/``leaf_counts``: area and primitive count of each leaf or cell.
     """
-    root = float(box_area(root_lo, root_hi))
+    root = float(root_area)
     steps = float(np.sum(step_areas)) / root
     leaves = float(np.sum(leaf_areas)) / root
     tests = float(np.dot(np.asarray(leaf_areas, float), np.asarray(leaf_counts, float))) / root

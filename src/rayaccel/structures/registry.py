@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from ..scene import Spheres, TriangleMesh
+from .bvh.accelerator import BVH_CLASSES
 from .grid.accelerator import UniformGrid
 from .none import BruteForce
 
@@ -11,6 +12,7 @@ __all__ = ["build", "build_class", "methods"]
 _METHODS = {
     "none": BruteForce,
     "grid": UniformGrid,
+    **{cls.method: cls for cls in BVH_CLASSES},
 }
 
 

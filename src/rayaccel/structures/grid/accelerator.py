@@ -8,7 +8,7 @@ import time
 import numba
 import numpy as np
 
-from ...stats import surface_area_stats
+from ...stats import box_area, surface_area_stats
 from ..base import Accelerator
 from .build_uniform import build_grid, grid_box, resolution_for
 from .traverse import grid_trace_kernel
@@ -123,6 +123,6 @@ class UniformGrid(Accelerator):
         }
         cell_areas = np.full(n_cells, cell_area)
         # Every cell entered is one DDA step, so cells count as traversal steps too.
-        result.update(surface_area_stats(g.lo, g.hi, step_areas=cell_areas,
+        result.update(surface_area_stats(box_area(g.lo, g.hi), step_areas=cell_areas,
                                          leaf_areas=cell_areas, leaf_counts=counts))
         return result

@@ -1,0 +1,1 @@
+"""Bounding volume hierarchies: six builders, one flat layout, one traversal."""

@@ -1,0 +1,232 @@
+"""The BVH methods as :class:`~rayaccel.structures.base.Accelerator` classes, one per builder."""
+
+from __future__ import annotations
+
+import time
+
+import numba
+import numpy as np
+
+from ...stats import box_area, surface_area_stats
+from ..base import Accelerator
+from .build_ploc import build_ploc
+from .build_top_down import MORTON, OBJECT_MEDIAN, SAH_BINNED, SAH_SWEEP, SPATIAL_MEDIAN, build_top_down
+from .layout import BvhArrays
+from .nodes import node_depths
+from .split_morton import morton_codes
+from .traverse import BOX, KDOP, KDOP_NORMALS, SPHERE_VOLUME, bvh_trace_kernel
+from .volumes import fit_kdops, fit_spheres
+
+__all__ = ["BVH_CLASSES"]
+
+_BOUNDS = {"aabb": BOX, "sphere": SPHERE_VOLUME, "kdop": KDOP}
+
+
+def _positive(name, value, kind=float):
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise TypeError(f"{name} must be a number, got {type(value).__name__}")
+    if kind is int and int(value) != value:
+        raise TypeError(f"{name} must be an integer, got {value!r}")
+    if not np.isfinite(value) or value <= 0:
+        raise ValueError(f"{name} must be positive, got {value!r}")
+    return kind(value)
+
+
+class BoundingVolumeHierarchy(Accelerator):
+    """Common part of every BVH: options, volume fitting, traversal and statistics.
+
+    Options shared by all builders
+    ------------------------------
+    max_leaf_size : int
+        Largest number of primitives in a leaf (SAH builders make smaller
+        leaves where splitting is cheaper).
+    traversal_cost, intersection_cost : float, default 1, 1
+        ``C_t`` and ``C_i`` of the SAH, used by the SAH and agglomerative
+        builders to decide splits and leaves, and by ``stats()``.
+    bounds : "aabb", "sphere" or "kdop"
+        The node volume the traversal tests: boxes (cheapest test), spheres
+        (rotation invariant, usually looser) or 14-DOPs (7 slabs, tightest,
+        dearest). The tree is always built on boxes.
+    sphere_fit : "primitives" or "children"
+        With ``bounds="sphere"``: Ritter's sphere over all primitives below the
+        node, or the exact sphere around the two child spheres.
+    """
+
+    default_leaf_size = 4
+
+    def __init__(self, scene, *, max_leaf_size=None, traversal_cost=1.0, intersection_cost=1.0, bounds="aabb",
+                 sphere_fit="primitives", **builder_options):
+        max_leaf_size = self.default_leaf_size if max_leaf_size is None else max_leaf_size
+        max_leaf_size = _positive("max_leaf_size", max_leaf_size, int)
+        traversal_cost = _positive("traversal_cost", traversal_cost)
+        intersection_cost = _positive("intersection_cost", intersection_cost)
+        if bounds not in _BOUNDS:
+            raise ValueError(f"bounds must be one of {tuple(_BOUNDS)}, got {bounds!r}")
+        if sphere_fit not in ("primitives", "children"):
+            raise ValueError(f"sphere_fit must be 'primitives' or 'children', got {sphere_fit!r}")
+        options = {"max_leaf_size": max_leaf_size, "traversal_cost": traversal_cost,
+                   "intersection_cost": intersection_cost, "bounds": bounds, **builder_options}
+        if bounds == "sphere":
+            options["sphere_fit"] = sphere_fit
+        super().__init__(scene, options)
+        start = time.perf_counter()
+        prim_bounds = scene.bounds()
+        box, first, count, order = self._build(prim_bounds, max_leaf_size, traversal_cost, intersection_cost,
+                                               **builder_options)
+        self.bvh = BvhArrays(box, first, count, order)
+        self.geometry = np.ascontiguousarray(scene.geometry[order])
+        self.bounds_kind = _BOUNDS[bounds]
+        if bounds == "kdop":
+            self.volume = fit_kdops(scene.kind, self.geometry, first, count, KDOP_NORMALS)
+        elif bounds == "sphere":
+            self.volume = fit_spheres(scene.kind, self.geometry, first, count, sphere_fit == "children")
+        else:
+            self.volume = np.zeros((0, 1))
+        self.depth = node_depths(first, count)
+        self.build_seconds = time.perf_counter() - start
+
+    def _build(self, prim_bounds, max_leaf_size, traversal_cost, intersection_cost, **options):
+        raise NotImplementedError
+
+    def _trace(self, batch, any_hit, t, prim, u, v, work):
+        b = self.bvh
+        rows = numba.config.NUMBA_NUM_THREADS
+        depth = int(self.depth.max()) + 2
+        stack_node = np.empty((rows, depth), dtype=np.int32)
+        stack_t = np.empty((rows, depth))
+        bvh_trace_kernel(self.bounds_kind, b.node_box, self.volume, b.node_first, b.node_count, b.prim_order,
+                         self.scene.kind, self.geometry, KDOP_NORMALS, batch.origins, batch.directions,
+                         batch.t_min, batch.t_max, any_hit, stack_node, stack_t, t, prim, u, v, work)
+
+    def volume_areas(self) -> np.ndarray:
+        """Surface area of each node's volume (the one the traversal tests)."""
+        if self.bounds_kind == SPHERE_VOLUME:
+            return 4.0 * np.pi * self.volume[:, 3] ** 2
+        if self.bounds_kind == KDOP:
+            from ...geometry.kdop import kdop_surface_areas
+
+            return kdop_surface_areas(self.volume, KDOP_NORMALS)
+        return box_area(self.bvh.node_box[:, :3], self.bvh.node_box[:, 3:])
+
+    def _structure_stats(self) -> dict:
+        b = self.bvh
+        leaf = b.node_count > 0
+        areas = self.volume_areas()
+        result = {
+            "nodes": b.n_nodes,
+            "leaves": int(leaf.sum()),
+            "nonempty_leaves": int(leaf.sum()),
+            "max_depth": int(self.depth.max()),
+            "references": int(b.node_count.sum()),
+            "avg_prims_per_nonempty_leaf": float(b.node_count[leaf].mean()),
+            "bytes": b.nbytes + self.volume.nbytes + self.geometry.nbytes,
+        }
+        sa = surface_area_stats(areas[0], step_areas=areas[~leaf], leaf_areas=areas[leaf],
+                                leaf_counts=b.node_count[leaf],
+                                traversal_cost=self.options["traversal_cost"],
+                                intersection_cost=self.options["intersection_cost"])
+        result.update(sa)
+        result["sah_cost"] = sa["expected_cost"]
+        return result
+
+
+class BinnedSah(BoundingVolumeHierarchy):
+    """``bvh-binned``: top-down binned SAH (Wald 2007), the default BVH.
+
+    Extra option: ``bins`` (default 16), centroid intervals per axis; more bins
+    get closer to the full sweep and build slower. Leaves up to 8 primitives.
+    """
+
+    method = "bvh-binned"
+    default_leaf_size = 8
+
+    def __init__(self, scene, *, bins: int = 16, **options):
+        bins = _positive("bins", bins, int)
+        if bins < 2:
+            raise ValueError(f"bins must be at least 2, got {bins}")
+        super().__init__(scene, bins=bins, **options)
+
+    def _build(self, pb, max_leaf_size, c_t, c_i, bins):
+        order = np.arange(len(pb.lo), dtype=np.int64)
+        box, first, count = build_top_down(pb.lo, pb.hi, pb.centroid, order, np.zeros(0, np.int64), SAH_BINNED,
+                                           max_leaf_size, bins, c_t, c_i)
+        return box, first, count, order
+
+
+class SweepSah(BoundingVolumeHierarchy):
+    """``bvh-sah``: top-down SAH evaluated at every sorted centroid position on all three axes
+    (Goldsmith & Salmon 1987; MacDonald & Booth 1990). Best SAH quality of the object-split
+    builders; O(n log^2 n) build. Leaves up to 8 primitives."""
+
+    method = "bvh-sah"
+    default_leaf_size = 8
+
+    def _build(self, pb, max_leaf_size, c_t, c_i):
+        order = np.arange(len(pb.lo), dtype=np.int64)
+        box, first, count = build_top_down(pb.lo, pb.hi, pb.centroid, order, np.zeros(0, np.int64), SAH_SWEEP,
+                                           max_leaf_size, 0, c_t, c_i)
+        return box, first, count, order
+
+
+class SpatialMedian(BoundingVolumeHierarchy):
+    """``bvh-median-space``: top-down, split at the middle of the centroid box's longest axis
+    (Kay & Kajiya 1986). Leaves up to 4 primitives."""
+
+    method = "bvh-median-space"
+
+    def _build(self, pb, max_leaf_size, c_t, c_i):
+        order = np.arange(len(pb.lo), dtype=np.int64)
+        box, first, count = build_top_down(pb.lo, pb.hi, pb.centroid, order, np.zeros(0, np.int64),
+                                           SPATIAL_MEDIAN, max_leaf_size, 0, c_t, c_i)
+        return box, first, count, order
+
+
+class ObjectMedian(BoundingVolumeHierarchy):
+    """``bvh-median-object``: top-down, half of the primitives (sorted along the longest
+    centroid axis) on each side; a balanced tree. Leaves up to 4 primitives."""
+
+    method = "bvh-median-object"
+
+    def _build(self, pb, max_leaf_size, c_t, c_i):
+        order = np.arange(len(pb.lo), dtype=np.int64)
+        box, first, count = build_top_down(pb.lo, pb.hi, pb.centroid, order, np.zeros(0, np.int64),
+                                           OBJECT_MEDIAN, max_leaf_size, 0, c_t, c_i)
+        return box, first, count, order
+
+
+class LinearBvh(BoundingVolumeHierarchy):
+    """``bvh-lbvh``: Morton-code linear BVH (Lauterbach et al. 2009; Karras 2012): one sort
+    along a Z-order curve, then splits at the codes' highest differing bit. Fastest build,
+    lowest quality. Leaves up to 4 primitives."""
+
+    method = "bvh-lbvh"
+
+    def _build(self, pb, max_leaf_size, c_t, c_i):
+        codes = morton_codes(pb.centroid)
+        order = np.argsort(codes, kind="stable").astype(np.int64)
+        box, first, count = build_top_down(pb.lo, pb.hi, pb.centroid, order, codes[order], MORTON,
+                                           max_leaf_size, 0, c_t, c_i)
+        return box, first, count, order
+
+
+class Agglomerative(BoundingVolumeHierarchy):
+    """``bvh-agglomerative``: bottom-up clustering, PLOC (Meister & Bittner 2018).
+
+    Extra option: ``radius`` (default 16), how many neighbours along the Morton
+    order each cluster considers; larger is slower and closer to exact
+    agglomerative clustering (Walter et al. 2008). Subtrees of up to
+    ``max_leaf_size`` (default 4) primitives collapse into leaves where the SAH prefers it.
+    """
+
+    method = "bvh-agglomerative"
+
+    def __init__(self, scene, *, radius: int = 16, **options):
+        super().__init__(scene, radius=_positive("radius", radius, int), **options)
+
+    def _build(self, pb, max_leaf_size, c_t, c_i, radius):
+        codes = morton_codes(pb.centroid)
+        order = np.argsort(codes, kind="stable").astype(np.int64)
+        return build_ploc(pb.lo, pb.hi, order, radius, max_leaf_size, c_t, c_i)
+
+
+BVH_CLASSES = (Agglomerative, SpatialMedian, ObjectMedian, SweepSah, BinnedSah, LinearBvh)

@@ -1,0 +1,93 @@
+"""Helpers every builder shares: node boxes, SAH of a split, and depth-first compaction."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..._jit import kernel
+
+__all__ = ["box_area6", "range_bounds", "compact", "node_depths"]
+
+
+@kernel
+def box_area6(box):
+    """Surface area of a box given as ``(lo_x, lo_y, lo_z, hi_x, hi_y, hi_z)``; 0 when empty."""
+    ex = max(box[3] - box[0], 0.0)
+    ey = max(box[4] - box[1], 0.0)
+    ez = max(box[5] - box[2], 0.0)
+    return 2.0 * (ex * ey + ey * ez + ex * ez)
+
+
+@kernel
+def range_bounds(lo, hi, centroid, order, start, end, box, centroid_box):
+    """Box of the primitives ``order[start:end]`` and box of their centroids, written in place."""
+    for k in range(3):
+        box[k] = np.inf
+        box[k + 3] = -np.inf
+        centroid_box[k] = np.inf
+        centroid_box[k + 3] = -np.inf
+    for i in range(start, end):
+        p = order[i]
+        for k in range(3):
+            box[k] = min(box[k], lo[p, k])
+            box[k + 3] = max(box[k + 3], hi[p, k])
+            centroid_box[k] = min(centroid_box[k], centroid[p, k])
+            centroid_box[k + 3] = max(centroid_box[k + 3], centroid[p, k])
+
+
+@kernel
+def compact(node_box, left, right, leaf_first, leaf_count, root):
+    """Renumber a binary tree given by ``left``/``right`` child indices (-1 at leaves)
+    into the canonical layout: root 0, children side by side, depth-first order."""
+    n = 0
+    stack = np.empty(left.shape[0] + 1, dtype=np.int64)
+    # count nodes reachable from the root
+    sp = 0
+    stack[sp] = root
+    sp += 1
+    while sp > 0:
+        sp -= 1
+        node = stack[sp]
+        n += 1
+        if left[node] >= 0:
+            stack[sp] = left[node]
+            stack[sp + 1] = right[node]
+            sp += 2
+    out_box = np.empty((n, 6))
+    out_first = np.empty(n, dtype=np.int32)
+    out_count = np.empty(n, dtype=np.int32)
+    target = np.empty(left.shape[0] + 1, dtype=np.int64)
+    sp = 0
+    stack[sp] = root
+    target[sp] = 0
+    sp += 1
+    n_out = 1
+    while sp > 0:
+        sp -= 1
+        node = stack[sp]
+        slot = target[sp]
+        out_box[slot] = node_box[node]
+        if left[node] >= 0:
+            out_first[slot] = n_out
+            out_count[slot] = 0
+            stack[sp] = right[node]
+            target[sp] = n_out + 1
+            stack[sp + 1] = left[node]
+            target[sp + 1] = n_out
+            sp += 2
+            n_out += 2
+        else:
+            out_first[slot] = leaf_first[node]
+            out_count[slot] = leaf_count[node]
+    return out_box, out_first, out_count
+
+
+@kernel
+def node_depths(node_first, node_count):
+    """Depth of every node (root 0)."""
+    depth = np.zeros(node_first.shape[0], dtype=np.int64)
+    for node in range(node_first.shape[0]):
+        if node_count[node] == 0:
+            depth[node_first[node]] = depth[node] + 1
+            depth[node_first[node] + 1] = depth[node] + 1
+    return depth

@@ -1,0 +1,35 @@
+"""Top-down split at the object median: half of the primitives on each side.
+
+Sorts the range by centroid along the centroid box's longest axis and cuts it
+in the middle, which gives a balanced tree of depth log2(n) whatever the
+scene. It is also the fallback of every other builder when their split
+cannot separate the primitives (all centroids equal).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..._jit import kernel
+
+__all__ = ["split_object_median"]
+
+
+@kernel
+def split_object_median(centroid, order, start, end, centroid_box):
+    """Sort ``order[start:end]`` along the longest centroid axis; return the middle index."""
+    axis = 0
+    extent = centroid_box[3] - centroid_box[0]
+    for k in (1, 2):
+        if centroid_box[k + 3] - centroid_box[k] > extent:
+            axis = k
+            extent = centroid_box[k + 3] - centroid_box[k]
+    if extent > 0.0:
+        keys = np.empty(end - start)
+        for i in range(start, end):
+            keys[i - start] = centroid[order[i], axis]
+        ranked = np.argsort(keys, kind="mergesort")
+        segment = order[start:end].copy()
+        for i in range(end - start):
+            order[start + i] = segment[ranked[i]]
+    return (start + end) // 2

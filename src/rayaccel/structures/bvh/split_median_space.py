@@ -1,0 +1,40 @@
+"""Top-down split at the spatial median: the middle of the centroid box's longest axis.
+
+The classic "median cut" of Kay & Kajiya (1986): cheap, blind to where the
+primitives are, and fine for evenly spread scenes.
+"""
+
+from __future__ import annotations
+
+from ..._jit import kernel
+
+__all__ = ["split_spatial_median"]
+
+
+@kernel
+def split_spatial_median(centroid, order, start, end, centroid_box):
+    """Partition ``order[start:end]`` in place at the middle of the longest centroid axis.
+
+    Returns the index of the first primitive on the right, or -1 when one side
+    would be empty (all centroids on one side of the middle, or all equal).
+    """
+    axis = 0
+    extent = centroid_box[3] - centroid_box[0]
+    for k in (1, 2):
+        if centroid_box[k + 3] - centroid_box[k] > extent:
+            axis = k
+            extent = centroid_box[k + 3] - centroid_box[k]
+    if extent <= 0.0:
+        return -1
+    middle = 0.5 * (centroid_box[axis] + centroid_box[axis + 3])
+    left = start
+    right = end - 1
+    while left <= right:
+        if centroid[order[left], axis] < middle:
+            left += 1
+        else:
+            order[left], order[right] = order[right], order[left]
+            right -= 1
+    if left == start or left == end:
+        return -1
+    return left

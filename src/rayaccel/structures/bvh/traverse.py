@@ -1,0 +1,180 @@
+"""Stack traversal of the flat BVH, closest hit and any hit.
+
+At an inner node both children's volumes are tested; the ray descends into
+the nearer one that it enters before its best hit so far and pushes the
+farther one with its entry distance (front-to-back order, as in pbrt's
+``BVHAggregate::Intersect``, but ordered by the actual entry distances rather
+than by the split axis). A popped node whose entry distance lies beyond the
+best hit found since it was pushed is skipped. Stacks are preallocated per
+thread, one row as deep as the tree, so no ray allocates memory.
+
+The slab tests stay free of NaN trouble for zero direction components (an
+origin on a slab plane makes ``0 * inf`` NaN): comparisons are written so
+that a NaN never replaces the running entry or exit distance, which is the
+ordering pbrt-v4 uses in ``Bounds3::IntersectP``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import prange
+
+from ..._jit import kernel, parallel_kernel, thread_id
+from ...geometry.primitive import intersect_prim, ray_setup
+from ..base import is_closer, store_hit
+
+__all__ = ["BOX", "SPHERE_VOLUME", "KDOP", "KDOP_NORMALS", "bvh_trace_kernel"]
+
+BOX = 0
+SPHERE_VOLUME = 1
+KDOP = 2
+
+# The 7 slab normals of the 14-DOP: the three axes and the four cube diagonals.
+KDOP_NORMALS = np.array([
+    [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0],
+    [1.0, 1.0, 1.0], [1.0, 1.0, -1.0], [1.0, -1.0, 1.0], [-1.0, 1.0, 1.0],
+])
+
+
+@kernel
+def _slab(lo, hi, o, inv, enter, exit_):
+    t0 = (lo - o) * inv
+    t1 = (hi - o) * inv
+    if inv < 0.0:
+        t0, t1 = t1, t0
+    if t0 > enter:
+        enter = t0
+    if t1 < exit_:
+        exit_ = t1
+    return enter, exit_
+
+
+@kernel
+def _enter_box(box, node, ox, oy, oz, ix, iy, iz, t_min, t_max):
+    enter, exit_ = _slab(box[node, 0], box[node, 3], ox, ix, t_min, t_max)
+    enter, exit_ = _slab(box[node, 1], box[node, 4], oy, iy, enter, exit_)
+    enter, exit_ = _slab(box[node, 2], box[node, 5], oz, iz, enter, exit_)
+    return enter if enter <= exit_ else np.inf
+
+
+@kernel
+def _enter_kdop(volume, node, proj_o, proj_inv, t_min, t_max):
+    enter = t_min
+    exit_ = t_max
+    for j in range(7):
+        enter, exit_ = _slab(volume[node, j], volume[node, j + 7], proj_o[j], proj_inv[j], enter, exit_)
+    return enter if enter <= exit_ else np.inf
+
+
+@kernel
+def _enter_sphere(volume, node, ox, oy, oz, dx, dy, dz, t_min, t_max):
+    fx = ox - volume[node, 0]
+    fy = oy - volume[node, 1]
+    fz = oz - volume[node, 2]
+    r = volume[node, 3]
+    a = dx * dx + dy * dy + dz * dz
+    b = -(fx * dx + fy * dy + fz * dz)
+    s = b / a
+    lx = fx + s * dx
+    ly = fy + s * dy
+    lz = fz + s * dz
+    disc = r * r - (lx * lx + ly * ly + lz * lz)
+    if disc < 0.0:
+        return np.inf
+    half = math.sqrt(disc * a) / a
+    near = s - half
+    far = s + half
+    if far < t_min or near > t_max:
+        return np.inf
+    return max(near, t_min)
+
+
+@kernel
+def _enter(bounds_kind, box, volume, node, ray, proj_o, proj_inv, t_min, t_max):
+    """Entry distance of the ray into ``node``'s volume within ``[t_min, t_max]``; inf if it misses."""
+    if bounds_kind == BOX:
+        return _enter_box(box, node, ray[0], ray[1], ray[2], proj_inv[0], proj_inv[1], proj_inv[2], t_min, t_max)
+    if bounds_kind == KDOP:
+        return _enter_kdop(volume, node, proj_o, proj_inv, t_min, t_max)
+    return _enter_sphere(volume, node, ray[0], ray[1], ray[2], ray[3], ray[4], ray[5], t_min, t_max)
+
+
+@kernel
+def _project(x, y, z, normals, j):
+    return x * normals[j, 0] + y * normals[j, 1] + z * normals[j, 2]
+
+
+@parallel_kernel
+def bvh_trace_kernel(bounds_kind, node_box, node_volume, node_first, node_count, prim_order, kind, geom,
+                     normals, origins, directions, t_min, t_max, any_hit, stack_node, stack_t,
+                     out_t, out_prim, out_u, out_v, work):
+    """Trace every ray through the BVH; ``geom`` is in leaf order (``geom[prim_order]``)."""
+    count_work = work.shape[0] > 0
+    n_normals = 7 if bounds_kind == KDOP else 3
+    for i in prange(origins.shape[0]):
+        ox, oy, oz = origins[i, 0], origins[i, 1], origins[i, 2]
+        dx, dy, dz = directions[i, 0], directions[i, 1], directions[i, 2]
+        ray = ray_setup(ox, oy, oz, dx, dy, dz)
+        tid = thread_id()
+        nodes_here = stack_node[tid]
+        entries_here = stack_t[tid]
+        proj_o = (ox, oy, oz, 0.0, 0.0, 0.0, 0.0)
+        proj_inv = (1.0 / dx, 1.0 / dy, 1.0 / dz, 0.0, 0.0, 0.0, 0.0)
+        if n_normals == 7:
+            proj_o = (ox, oy, oz, _project(ox, oy, oz, normals, 3), _project(ox, oy, oz, normals, 4),
+                      _project(ox, oy, oz, normals, 5), _project(ox, oy, oz, normals, 6))
+            proj_inv = (proj_inv[0], proj_inv[1], proj_inv[2], 1.0 / _project(dx, dy, dz, normals, 3),
+                        1.0 / _project(dx, dy, dz, normals, 4), 1.0 / _project(dx, dy, dz, normals, 5),
+                        1.0 / _project(dx, dy, dz, normals, 6))
+        ray_t_min = t_min[i]
+        best_t = t_max[i]
+        best_prim = -1
+        best_u = 0.0
+        best_v = 0.0
+        n_nodes = 0
+        n_tests = 0
+        node = 0
+        sp = 0
+        if _enter(bounds_kind, node_box, node_volume, 0, ray, proj_o, proj_inv, ray_t_min, best_t) == np.inf:
+            node = -1
+        while node >= 0:
+            n_nodes += 1
+            count = node_count[node]
+            if count > 0:
+                first = node_first[node]
+                for k in range(first, first + count):
+                    n_tests += 1
+                    t, u, v = intersect_prim(kind, geom, k, ray, ray_t_min, best_t)
+                    if is_closer(t, prim_order[k], best_t, best_prim):
+                        best_t, best_prim, best_u, best_v = t, prim_order[k], u, v
+                        if any_hit:
+                            break
+                if any_hit and best_prim >= 0:
+                    break
+                node = -1
+            else:
+                near = node_first[node]
+                far = near + 1
+                t_near = _enter(bounds_kind, node_box, node_volume, near, ray, proj_o, proj_inv, ray_t_min, best_t)
+                t_far = _enter(bounds_kind, node_box, node_volume, far, ray, proj_o, proj_inv, ray_t_min, best_t)
+                if t_far < t_near:
+                    near, far = far, near
+                    t_near, t_far = t_far, t_near
+                if t_near == np.inf:
+                    node = -1
+                else:
+                    node = near
+                    if t_far != np.inf:
+                        nodes_here[sp] = far
+                        entries_here[sp] = t_far
+                        sp += 1
+            while node < 0 and sp > 0:
+                sp -= 1
+                if entries_here[sp] <= best_t:
+                    node = nodes_here[sp]
+        store_hit(i, best_t, best_prim, best_u, best_v, out_t, out_prim, out_u, out_v)
+        if count_work:
+            work[i, 0] = n_nodes
+            work[i, 1] = n_tests
