@@ -5,7 +5,27 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["as_points", "as_index_triples", "as_per_ray", "as_positive_int"]
+from ._jit import kernel
+
+__all__ = ["as_points", "as_index_triples", "as_per_ray", "as_positive_int", "first_zero_row"]
+
+
+@kernel
+def _first_nonfinite_row(array):
+    for i in range(array.shape[0]):
+        for k in range(array.shape[1]):
+            if not np.isfinite(array[i, k]):
+                return i
+    return -1
+
+
+@kernel
+def first_zero_row(array):
+    """Index of the first all-zero row of an (n, 3) array, or -1."""
+    for i in range(array.shape[0]):
+        if array[i, 0] == 0.0 and array[i, 1] == 0.0 and array[i, 2] == 0.0:
+            return i
+    return -1
 
 
 def as_points(name: str, values, *, allow_empty: bool = False) -> np.ndarray:
@@ -25,9 +45,9 @@ def as_points(name: str, values, *, allow_empty: bool = False) -> np.ndarray:
     if array.shape[0] == 0 and not allow_empty:
         raise ValueError(f"{name} is empty")
     array = np.ascontiguousarray(array, dtype=np.float64)
-    bad = ~np.isfinite(array).all(axis=1)
-    if bad.any():
-        first = int(np.flatnonzero(bad)[0])
+    first = _first_nonfinite_row(array)
+    if first >= 0:
+        bad = ~np.isfinite(array).all(axis=1)
         raise ValueError(
             f"{name} has {int(bad.sum())} row(s) with NaN or infinite coordinates "
             f"(first at index {first}: {array[first].tolist()})"

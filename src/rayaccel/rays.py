@@ -6,7 +6,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ._validate import as_per_ray, as_points
+from ._validate import as_per_ray, as_points, first_zero_row
 
 __all__ = ["RayBatch", "RayCounters", "Hits", "Camera", "prepare_rays"]
 
@@ -72,11 +72,10 @@ def prepare_rays(origins, directions, t_min=0.0, t_max=np.inf) -> RayBatch:
             raise ValueError(
                 f"origins {origins.shape} and directions {directions.shape} must have the same shape"
             )
-    zero = ~directions.any(axis=1)
-    if zero.any():
-        raise ValueError(
-            f"{int(zero.sum())} ray direction(s) have zero length (first at index {int(np.flatnonzero(zero)[0])})"
-        )
+    first_zero = first_zero_row(directions)
+    if first_zero >= 0:
+        zero = ~directions.any(axis=1)
+        raise ValueError(f"{int(zero.sum())} ray direction(s) have zero length (first at index {first_zero})")
     n = len(origins)
     return RayBatch(origins, directions, as_per_ray("t_min", t_min, n), as_per_ray("t_max", t_max, n))
 

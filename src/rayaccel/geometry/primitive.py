@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from .._jit import kernel
+from .._jit import inline_kernel
 from ..scene import TRIANGLE
 from .sphere import intersect_sphere
 from .triangle import intersect_triangle, shear_setup
@@ -10,14 +10,14 @@ from .triangle import intersect_triangle, shear_setup
 __all__ = ["ray_setup", "intersect_prim"]
 
 
-@kernel
+@inline_kernel
 def ray_setup(ox, oy, oz, dx, dy, dz):
     """The per-ray constants :func:`intersect_prim` takes, computed once per ray."""
     kx, ky, kz, sx, sy, sz = shear_setup(dx, dy, dz)
     return (ox, oy, oz, dx, dy, dz, kx, ky, kz, sx, sy, sz)
 
 
-@kernel
+@inline_kernel
 def intersect_prim(kind, geom, prim, ray, t_min, t_max):
     """``(t, u, v)`` of the ray's hit with primitive ``prim`` in ``[t_min, t_max]``,
     ``t = inf`` on a miss; ``u, v`` are triangle barycentrics (0 for spheres)."""

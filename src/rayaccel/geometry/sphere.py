@@ -15,12 +15,12 @@ import math
 
 import numpy as np
 
-from .._jit import kernel
+from .._jit import inline_kernel
 
 __all__ = ["intersect_sphere"]
 
 
-@kernel
+@inline_kernel
 def intersect_sphere(geom, prim, ox, oy, oz, dx, dy, dz, t_min, t_max):
     """Nearest ``t`` in ``[t_min, t_max]`` where the ray meets sphere ``geom[prim]``
     (cx, cy, cz, r), or ``inf``. A ray starting inside hits the far side."""

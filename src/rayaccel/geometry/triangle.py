@@ -14,12 +14,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._jit import kernel
+from .._jit import inline_kernel
 
 __all__ = ["shear_setup", "intersect_triangle"]
 
 
-@kernel
+@inline_kernel
 def shear_setup(dx, dy, dz):
     """Per-ray constants ``(kx, ky, kz, sx, sy, sz)``: the dominant axis ``kz`` of the
     direction, the two others ordered to keep the winding, and the shear."""
@@ -39,7 +39,7 @@ def shear_setup(dx, dy, dz):
     return kx, ky, kz, d[kx] * sz, d[ky] * sz, sz
 
 
-@kernel
+@inline_kernel
 def intersect_triangle(geom, prim, ox, oy, oz, kx, ky, kz, sx, sy, sz, t_min, t_max):
     """Hit of the ray with triangle ``geom[prim]`` (v0, v1, v2 as 9 floats).
 

@@ -4,14 +4,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._jit import kernel
+from .._jit import inline_kernel
 from ..rays import Camera, Hits, RayCounters, prepare_rays
 from ..scene import SPHERE, Spheres, TriangleMesh
 
 __all__ = ["Accelerator", "is_closer", "store_hit"]
 
 
-@kernel
+@inline_kernel
 def is_closer(t, prim, best_t, best_prim):
     """Whether a hit ``(t, prim)`` replaces the best so far. Equal distances go to
     the lower primitive index, so every structure reports the same primitive as
@@ -21,7 +21,7 @@ def is_closer(t, prim, best_t, best_prim):
     return best_prim < 0 or t < best_t or (t == best_t and prim < best_prim)
 
 
-@kernel
+@inline_kernel
 def store_hit(i, t, prim, u, v, out_t, out_prim, out_u, out_v):
     """Write ray ``i``'s best hit into the output arrays (left as a miss when ``prim < 0``)."""
     if prim >= 0:

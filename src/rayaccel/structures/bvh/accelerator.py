@@ -14,12 +14,17 @@ from .build_top_down import MORTON, OBJECT_MEDIAN, SAH_BINNED, SAH_SWEEP, SPATIA
 from .layout import BvhArrays
 from .nodes import node_depths
 from .split_morton import morton_codes
-from .traverse import BOX, KDOP, KDOP_NORMALS, SPHERE_VOLUME, bvh_trace_kernel
+from ...geometry.kdop import KDOP_NORMALS, kdop_surface_areas
+from .traverse import BOX, KDOP, SPHERE_VOLUME, bvh_trace_kernel
 from .volumes import fit_kdops, fit_spheres
 
 __all__ = ["BVH_CLASSES"]
 
 _BOUNDS = {"aabb": BOX, "sphere": SPHERE_VOLUME, "kdop": KDOP}
+# Node volumes are grown by this fraction of the scene's size (coordinates
+# included): the slab test's rounding, about 1e-16 of the coordinates, can then
+# never cull a node that a ray only touches, such as one at a vertex it aims at.
+_ROUNDING_PAD = 1e-11
 
 
 def _positive(name, value, kind=float):
@@ -73,11 +78,16 @@ class BoundingVolumeHierarchy(Accelerator):
         prim_bounds = scene.bounds()
         box, first, count, order = self._build(prim_bounds, max_leaf_size, traversal_cost, intersection_cost,
                                                **builder_options)
+        pad = _ROUNDING_PAD * float(np.abs(box[0]).max() + (box[0, 3:] - box[0, :3]).max())
+        box[:, :3] -= pad
+        box[:, 3:] += pad
         self.bvh = BvhArrays(box, first, count, order)
         self.geometry = np.ascontiguousarray(scene.geometry[order])
         self.bounds_kind = _BOUNDS[bounds]
         if bounds == "kdop":
             self.volume = fit_kdops(scene.kind, self.geometry, first, count, KDOP_NORMALS)
+            self.volume[:, :7] -= 2.0 * pad
+            self.volume[:, 7:] += 2.0 * pad
         elif bounds == "sphere":
             self.volume = fit_spheres(scene.kind, self.geometry, first, count, sphere_fit == "children")
         else:
@@ -103,8 +113,6 @@ class BoundingVolumeHierarchy(Accelerator):
         if self.bounds_kind == SPHERE_VOLUME:
             return 4.0 * np.pi * self.volume[:, 3] ** 2
         if self.bounds_kind == KDOP:
-            from ...geometry.kdop import kdop_surface_areas
-
             return kdop_surface_areas(self.volume, KDOP_NORMALS)
         return box_area(self.bvh.node_box[:, :3], self.bvh.node_box[:, 3:])
 

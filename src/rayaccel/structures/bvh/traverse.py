@@ -21,7 +21,8 @@ import math
 import numpy as np
 from numba import prange
 
-from ..._jit import kernel, parallel_kernel, thread_id
+from ..._jit import inline_kernel, parallel_kernel, thread_id
+from ...geometry.kdop import KDOP_NORMALS
 from ...geometry.primitive import intersect_prim, ray_setup
 from ..base import is_closer, store_hit
 
@@ -31,14 +32,7 @@ BOX = 0
 SPHERE_VOLUME = 1
 KDOP = 2
 
-# The 7 slab normals of the 14-DOP: the three axes and the four cube diagonals.
-KDOP_NORMALS = np.array([
-    [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0],
-    [1.0, 1.0, 1.0], [1.0, 1.0, -1.0], [1.0, -1.0, 1.0], [-1.0, 1.0, 1.0],
-])
-
-
-@kernel
+@inline_kernel
 def _slab(lo, hi, o, inv, enter, exit_):
     t0 = (lo - o) * inv
     t1 = (hi - o) * inv
@@ -51,7 +45,7 @@ def _slab(lo, hi, o, inv, enter, exit_):
     return enter, exit_
 
 
-@kernel
+@inline_kernel
 def _enter_box(box, node, ox, oy, oz, ix, iy, iz, t_min, t_max):
     enter, exit_ = _slab(box[node, 0], box[node, 3], ox, ix, t_min, t_max)
     enter, exit_ = _slab(box[node, 1], box[node, 4], oy, iy, enter, exit_)
@@ -59,7 +53,7 @@ def _enter_box(box, node, ox, oy, oz, ix, iy, iz, t_min, t_max):
     return enter if enter <= exit_ else np.inf
 
 
-@kernel
+@inline_kernel
 def _enter_kdop(volume, node, proj_o, proj_inv, t_min, t_max):
     enter = t_min
     exit_ = t_max
@@ -68,7 +62,7 @@ def _enter_kdop(volume, node, proj_o, proj_inv, t_min, t_max):
     return enter if enter <= exit_ else np.inf
 
 
-@kernel
+@inline_kernel
 def _enter_sphere(volume, node, ox, oy, oz, dx, dy, dz, t_min, t_max):
     fx = ox - volume[node, 0]
     fy = oy - volume[node, 1]
@@ -91,7 +85,7 @@ def _enter_sphere(volume, node, ox, oy, oz, dx, dy, dz, t_min, t_max):
     return max(near, t_min)
 
 
-@kernel
+@inline_kernel
 def _enter(bounds_kind, box, volume, node, ray, proj_o, proj_inv, t_min, t_max):
     """Entry distance of the ray into ``node``'s volume within ``[t_min, t_max]``; inf if it misses."""
     if bounds_kind == BOX:
@@ -101,7 +95,7 @@ def _enter(bounds_kind, box, volume, node, ray, proj_o, proj_inv, t_min, t_max):
     return _enter_sphere(volume, node, ray[0], ray[1], ray[2], ray[3], ray[4], ray[5], t_min, t_max)
 
 
-@kernel
+@inline_kernel
 def _project(x, y, z, normals, j):
     return x * normals[j, 0] + y * normals[j, 1] + z * normals[j, 2]
 

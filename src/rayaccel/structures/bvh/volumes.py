@@ -80,7 +80,7 @@ def fit_kdops(kind, geom_sorted, node_first, node_count, normals):
                     volume[node, j] = min(volume[node, j], prim_slabs[p, j])
                     volume[node, j + k] = max(volume[node, j + k], prim_slabs[p, j + k])
         else:
-            for child in (node_first[node], node_first[node] + 1):
+            for child in range(node_first[node], node_first[node] + 2):
                 for j in range(k):
                     volume[node, j] = min(volume[node, j], volume[child, j])
                     volume[node, j + k] = max(volume[node, j + k], volume[child, j + k])

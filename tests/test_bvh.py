@@ -1,0 +1,164 @@
+"""Every BVH builder and bounding volume against the brute-force oracle, and the tree's invariants."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import rayaccel as ra
+from rayaccel.geometry.kdop import KDOP_NORMALS
+
+from conftest import (
+    assert_same_hits,
+    axis_parallel_rays,
+    camera_rays,
+    random_rays,
+    vertex_and_edge_rays,
+)
+
+BUILDERS = [m for m in ra.methods() if m.startswith("bvh-")]
+BOUNDS = ["aabb", "sphere", "kdop"]
+
+
+def test_all_six_builders_are_registered():
+    assert set(BUILDERS) == {"bvh-agglomerative", "bvh-median-space", "bvh-median-object", "bvh-sah",
+                             "bvh-binned", "bvh-lbvh"}
+
+
+@pytest.mark.parametrize("bounds", BOUNDS)
+@pytest.mark.parametrize("method", BUILDERS)
+@pytest.mark.parametrize("scene_name", ["small_dragon", "spheres"])
+def test_bvh_agrees_with_brute_force(scene_name, method, bounds, request):
+    scene = request.getfixturevalue(scene_name)
+    reference = ra.build(scene, "none")
+    accel = ra.build(scene, method, bounds=bounds)
+    for origins, directions in (camera_rays(scene, 40), random_rays(scene, 1500), axis_parallel_rays(scene, 600)):
+        assert_same_hits(reference.intersect(origins, directions), accel.intersect(origins, directions))
+        np.testing.assert_array_equal(accel.occluded(origins, directions), reference.occluded(origins, directions))
+
+
+@pytest.mark.parametrize("method", ["bvh-binned", "bvh-agglomerative", "bvh-lbvh"])
+def test_bvh_on_bunny_and_adversarial_rays(bunny, small_dragon, method):
+    reference = ra.build(bunny, "none")
+    origins, directions = camera_rays(bunny, 32)
+    assert_same_hits(reference.intersect(origins, directions), ra.build(bunny, method).intersect(origins, directions))
+    reference = ra.build(small_dragon, "none")
+    accel = ra.build(small_dragon, method, bounds="kdop")
+    origins, directions = vertex_and_edge_rays(small_dragon, 2000)
+    assert_same_hits(reference.intersect(origins, directions), accel.intersect(origins, directions))
+    rng = np.random.default_rng(9)
+    faces = rng.integers(0, len(small_dragon), 1000)
+    corners = small_dragon.geometry[faces].reshape(-1, 3, 3)
+    on_surface = np.einsum("nk,nkj->nj", rng.dirichlet([1, 1, 1], 1000), corners)
+    directions = rng.normal(size=(1000, 3))
+    t_max = rng.uniform(0.0, 0.05, 1000)
+    assert_same_hits(reference.intersect(on_surface, directions, 0.0, t_max),
+                     accel.intersect(on_surface, directions, 0.0, t_max))
+
+
+def _leaf_ranges(accel):
+    b = accel.bvh
+    leaf = b.node_count > 0
+    return b.node_first[leaf].astype(np.int64), b.node_count[leaf].astype(np.int64)
+
+
+@pytest.mark.parametrize("method", BUILDERS)
+def test_structural_invariants(small_dragon, method):
+    accel = ra.build(small_dragon, method, max_leaf_size=6)
+    b = accel.bvh
+    n = len(small_dragon)
+    # every primitive in exactly one leaf, leaves tile the primitive order
+    assert sorted(b.prim_order.tolist()) == list(range(n))
+    first, count = _leaf_ranges(accel)
+    covered = np.zeros(n, dtype=int)
+    for f, c in zip(first, count):
+        covered[f:f + c] += 1
+    assert (covered == 1).all()
+    assert (count >= 1).all() and (count <= 6).all()
+    # a binary tree: 2 * leaves - 1 nodes, children after parents
+    assert b.n_nodes == 2 * len(first) - 1
+    inner = np.flatnonzero(b.node_count == 0)
+    assert (b.node_first[inner] > inner).all()
+    # child boxes inside parent boxes, leaf boxes around their primitives
+    for node in inner:
+        for child in (b.node_first[node], b.node_first[node] + 1):
+            assert (b.node_box[child, :3] >= b.node_box[node, :3]).all()
+            assert (b.node_box[child, 3:] <= b.node_box[node, 3:]).all()
+    bounds = small_dragon.bounds()
+    for node in np.flatnonzero(b.node_count > 0):
+        prims = b.prim_order[b.node_first[node]:b.node_first[node] + b.node_count[node]]
+        assert (bounds.lo[prims] >= b.node_box[node, :3]).all()
+        assert (bounds.hi[prims] <= b.node_box[node, 3:]).all()
+
+
+@pytest.mark.parametrize("bounds", ["sphere", "kdop"])
+def test_node_volumes_contain_their_primitives(small_dragon, bounds):
+    from rayaccel.structures.bvh.volumes import node_ranges
+
+    accel = ra.build(small_dragon, "bvh-binned", bounds=bounds)
+    b = accel.bvh
+    range_lo, range_hi = node_ranges(b.node_first, b.node_count)
+    vertices = accel.geometry.reshape(-1, 3, 3)
+    for node in range(0, b.n_nodes, 7):
+        points = vertices[range_lo[node]:range_hi[node]].reshape(-1, 3)
+        if bounds == "sphere":
+            assert (np.linalg.norm(points - accel.volume[node, :3], axis=1) <= accel.volume[node, 3]).all()
+        else:
+            proj = points @ KDOP_NORMALS.T
+            assert (proj >= accel.volume[node, :7] - 1e-12).all() and (proj <= accel.volume[node, 7:] + 1e-12).all()
+
+
+def test_sah_cost_ranks_the_builders(small_dragon):
+    cost = {m: ra.build(small_dragon, m).stats()["sah_cost"] for m in BUILDERS}
+    assert cost["bvh-sah"] <= cost["bvh-binned"] * 1.05
+    assert cost["bvh-binned"] < cost["bvh-median-object"]
+    assert cost["bvh-binned"] < cost["bvh-lbvh"]
+
+
+def test_tighter_volumes_have_lower_expected_leaf_visits(small_dragon):
+    stats = {b: ra.build(small_dragon, "bvh-binned", bounds=b).stats() for b in BOUNDS}
+    assert stats["kdop"]["expected_leaves_visited"] < stats["aabb"]["expected_leaves_visited"]
+
+
+@pytest.mark.parametrize("method", BUILDERS)
+def test_degenerate_scenes(method):
+    one = ra.TriangleMesh([[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 1, 2]])
+    hits = ra.build(one, method).intersect([[0.2, 0.2, 1.0]], [[0, 0, -1.0]])
+    assert hits.prim[0] == 0 and hits.t[0] == pytest.approx(1.0)
+    twins = ra.TriangleMesh([[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 1, 2], [0, 1, 2]])
+    assert ra.build(twins, method).intersect([[0.2, 0.2, 1.0]], [[0, 0, -1.0]]).prim[0] == 0
+    # many copies of one primitive: all centroids equal; ties go to the lowest index
+    copies = ra.Spheres(np.zeros((20_000, 3)), 1.0)
+    accel = ra.build(copies, method, max_leaf_size=4)
+    assert (accel.bvh.node_count <= 4).all()
+    hits = accel.intersect([[0, 0, -5.0], [0, 5.0, 0]], [[0, 0, 1.0], [0, 0, 1.0]])
+    assert hits.prim.tolist() == [0, -1]
+
+
+def test_a_million_copies_of_one_point():
+    copies = ra.Spheres(np.full((1_000_000, 3), 0.5), 1e-3)
+    accel = ra.build(copies, "bvh-binned")
+    assert accel.stats(np.array([[0.5, 0.5, -1.0]]), np.array([[0, 0, 1.0]]))["max_depth"] <= 40
+    assert accel.intersect([[0.5, 0.5, -1.0]], [[0, 0, 1.0]]).prim[0] == 0
+
+
+def test_bad_bvh_options(small_dragon):
+    with pytest.raises(ValueError, match="bounds"):
+        ra.build(small_dragon, "bvh-binned", bounds="capsule")
+    with pytest.raises(ValueError, match="bins"):
+        ra.build(small_dragon, "bvh-binned", bins=1)
+    with pytest.raises(ValueError, match="max_leaf_size"):
+        ra.build(small_dragon, "bvh-sah", max_leaf_size=0)
+    with pytest.raises(TypeError, match="max_leaf_size"):
+        ra.build(small_dragon, "bvh-sah", max_leaf_size=2.5)
+    with pytest.raises(TypeError):
+        ra.build(small_dragon, "bvh-lbvh", bins=8)
+
+
+def test_counters(small_dragon):
+    origins, directions = camera_rays(small_dragon, 48)
+    hits = ra.build(small_dragon, "bvh-binned").intersect(origins, directions, counters=True)
+    assert (hits.counters.nodes[hits.hit] >= 2).all()
+    assert (hits.counters.tests[hits.hit] >= 1).all()
+    assert (hits.counters.tests <= len(small_dragon)).all()
+    assert (hits.counters.mailbox_skips == 0).all()
