@@ -1,4 +1,4 @@
-.PHONY: install test demo bench
+.PHONY: install test demo bench clean-cache
 
 install:
 	python3 -m pip install -e ".[test]"
@@ -12,3 +12,8 @@ demo:
 bench:
 	python3 benchmarks/bench_grid.py
 	python3 benchmarks/bench_lecture.py
+
+# Numba's cache does not notice edits to a kernel's callees in other files:
+# clear it after changing kernels.
+clean-cache:
+	find src -name '*.nbi' -delete -o -name '*.nbc' -delete

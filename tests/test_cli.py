@@ -58,3 +58,20 @@ def test_errors_are_one_line(tmp_path, capsys):
     err = capsys.readouterr().err
     assert err.count("rayaccel: error:") == 4
     assert all(line.startswith("rayaccel: error:") for line in err.strip().splitlines())
+
+
+def test_bvh_experiment(tmp_path):
+    assert main(["--quiet", "experiment", "bvh", "--scenes", "spheres:300", "--size", "16", "--out", str(tmp_path)]) == 0
+    table = (tmp_path / "bvh.md").read_text()
+    for method in ("bvh-agglomerative", "bvh-median-space", "bvh-median-object", "bvh-sah", "bvh-binned", "bvh-lbvh"):
+        assert method in table
+        assert (tmp_path / f"bvh-heatmap-spheres-300-{method}.png").exists()
+    assert (tmp_path / "bvh.png").exists()
+
+
+def test_bounding_volume_experiment(tmp_path):
+    assert main(["--quiet", "experiment", "bounding-volumes", "--scenes", "dragon-11k", "--size", "16",
+                 "--out", str(tmp_path)]) == 0
+    table = (tmp_path / "bounding-volumes.md").read_text()
+    assert "14-DOP" in table and "sphere (Ritter over primitives)" in table and "aabb" in table
+    assert (tmp_path / "bounding-volumes.png").exists()

@@ -161,6 +161,7 @@ def _cmd_demo(args) -> None:
 
 def _cmd_experiment(args) -> None:
     from ._progress import progress_bar
+    from .structures.registry import methods
 
     if args.name == "grid-vs-none":
         from .experiments import grid_vs_none
@@ -171,8 +172,24 @@ def _cmd_experiment(args) -> None:
         with progress_bar("grid vs no grid", len(sizes), enabled=not args.quiet) as advance:
             rows = grid_vs_none.run(sizes, image_size=args.size, progress=advance)
         table, plot = grid_vs_none.write_report(rows, args.out, args.size)
-        print(table.read_text())
-        print(f"wrote {table} and {plot}")
+    elif args.name == "bvh":
+        from .experiments import bvh_builders
+
+        scenes = args.scenes or list(bvh_builders.DEFAULT_SCENES)
+        n_builders = sum(m.startswith("bvh-") for m in methods())
+        with progress_bar("which BVH is better", len(scenes) * n_builders, enabled=not args.quiet) as advance:
+            rows = bvh_builders.run(scenes, side=args.size, heatmap_dir=Path(args.out), progress=advance)
+        table, plot = bvh_builders.write_report(rows, args.out, args.size)
+    else:
+        from .experiments import bounding_volumes
+
+        scenes = args.scenes or ["bunny", "dragon-203k", "armadillo"]
+        total = len(scenes) * len(bounding_volumes.VOLUMES)
+        with progress_bar("cheap vs tight volumes", total, enabled=not args.quiet) as advance:
+            rows = bounding_volumes.run(scenes, side=args.size, progress=advance)
+        table, plot = bounding_volumes.write_report(rows, args.out, args.size)
+    print(table.read_text())
+    print(f"wrote {table} and {plot}")
 
 
 def _cmd_calibrate(args) -> None:
@@ -233,9 +250,10 @@ def _parser() -> argparse.ArgumentParser:
     stats.set_defaults(func=_cmd_stats)
 
     experiment = sub.add_parser("experiment", help="reproduce a lecture experiment")
-    experiment.add_argument("name", choices=["grid-vs-none"])
-    experiment.add_argument("--max-n", type=int, default=1_000_000, help="largest scene size")
-    experiment.add_argument("--size", type=int, default=512, help="image width and height")
+    experiment.add_argument("name", choices=["grid-vs-none", "bvh", "bounding-volumes"])
+    experiment.add_argument("--max-n", type=int, default=1_000_000, help="grid-vs-none: largest scene size")
+    experiment.add_argument("--scenes", nargs="+", help="bvh, bounding-volumes: scenes to measure")
+    experiment.add_argument("--size", type=int, default=512, help="image width and height (primary rays per side)")
     experiment.add_argument("--out", default="rayaccel-out", help="folder for the table and plot")
     experiment.set_defaults(func=_cmd_experiment)
 

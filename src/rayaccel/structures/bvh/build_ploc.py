@@ -46,14 +46,19 @@ def _cluster(lo, hi, morton_order, radius):
     n_clusters = n
     while n_clusters > 1:
         for i in range(n_clusters):
+            # closest candidates first, and on equal areas the nearer one in the
+            # order; even clusters look right first, odd ones left, so that equal
+            # clusters pair up as (0, 1), (2, 3), ... and halve every round
             best = np.inf
             best_j = -1
-            for j in range(max(0, i - radius), min(n_clusters, i + radius + 1)):
-                if j != i:
-                    area = _merged_area(node_box, clusters[i], clusters[j])
-                    if area < best or (area == best and j < best_j):
-                        best = area
-                        best_j = j
+            direction = 1 if i % 2 == 0 else -1
+            for distance in range(1, radius + 1):
+                for j in (i + direction * distance, i - direction * distance):
+                    if 0 <= j < n_clusters:
+                        area = _merged_area(node_box, clusters[i], clusters[j])
+                        if area < best:
+                            best = area
+                            best_j = j
             nearest[i] = best_j
         merged_any = False
         for i in range(n_clusters):

@@ -5,6 +5,7 @@ costs ``C_t + C_i (SA(L) n_L + SA(R) n_R) / SA(parent)``. Here every position
 between the centroid-sorted primitives on each of the three axes is a
 candidate: for each axis the range is sorted, the boxes of all suffixes are
 accumulated right to left, and a left-to-right sweep evaluates each cut.
+Cuts between equal centroids are skipped, as no plane can make them.
 O(n log n) per node; the best tree the SAH can give for object partitions,
 and the reference the binned builder approximates.
 """
@@ -73,6 +74,8 @@ def split_sah_sweep(lo, hi, centroid, order, start, end, parent_area, traversal_
             bx1 = max(bx1, hi[p, 0])
             by1 = max(by1, hi[p, 1])
             bz1 = max(bz1, hi[p, 2])
+            if centroid[p, axis] == centroid[sorted_prims[i], axis]:
+                continue  # no plane separates equal centroids
             cost = _area(bx0, by0, bz0, bx1, by1, bz1) * i + suffix_area[i] * (n - i)
             if cost < best_cost:
                 best_cost = cost

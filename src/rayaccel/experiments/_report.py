@@ -1,0 +1,34 @@
+"""Shared output for the experiments: markdown tables and matplotlib figures."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+__all__ = ["markdown_table", "new_figure", "save_figure"]
+
+
+def markdown_table(headers: list[str], rows: list[list], align_right_from: int = 1) -> list[str]:
+    """Lines of a markdown table; columns from ``align_right_from`` on are right-aligned."""
+    marks = ["---" if i < align_right_from else "---:" for i in range(len(headers))]
+    lines = ["| " + " | ".join(headers) + " |", "|" + "|".join(marks) + "|"]
+    lines += ["| " + " | ".join(str(cell) for cell in row) + " |" for row in rows]
+    return lines
+
+
+def new_figure(n_panels: int = 1, width: float = 6.0, height: float = 4.2):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, n_panels, figsize=(width * n_panels, height), dpi=120, squeeze=False)
+    return fig, axes[0]
+
+
+def save_figure(fig, path: Path) -> Path:
+    import matplotlib.pyplot as plt
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, bbox_inches="tight")
+    plt.close(fig)
+    return path
