@@ -10,7 +10,7 @@ demo:
 	rayaccel demo
 
 bench:
-	python3 benchmarks/bench_grid.py
+	python3 benchmarks/bench_structures.py
 	python3 benchmarks/bench_lecture.py
 
 # Numba's cache does not notice edits to a kernel's callees in other files:

@@ -81,9 +81,9 @@ class TriangleMesh:
         return f"TriangleMesh({len(self.vertices)} vertices, {len(self.faces)} triangles)"
 
     def bounds(self) -> PrimitiveBounds:
-        corners = self.geometry.reshape(-1, 3, 3)
-        lo, hi = corners.min(axis=1), corners.max(axis=1)
-        return PrimitiveBounds(lo, hi, corners.mean(axis=1))
+        from .geometry.bounds import triangle_bounds
+
+        return PrimitiveBounds(*triangle_bounds(self.geometry))
 
     def face_normals(self) -> np.ndarray:
         """Unit normals (F, 3) by the right-hand rule; zero for degenerate faces."""

@@ -15,6 +15,12 @@ side by side, so a node stores one index for both:
   primitives' geometry reordered the same way (``geom[prim_order]``), so that a
   leaf's primitives lie next to each other in memory.
 
+For traversal the nodes are also packed into one record of 32 bytes each,
+``node_records`` (n_nodes, 8) float32: the box rounded outwards to float32 and
+``first``, ``count`` stored bit for bit as int32 in the last two columns (read
+them through ``node_records.view(np.int32)``). The two children of a node then
+share one 64-byte cache line.
+
 Bounding volumes other than boxes (spheres, k-DOPs) are stored per node in an
 extra array ``node_volume`` beside the boxes; see :mod:`.volumes`.
 
@@ -30,7 +36,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-__all__ = ["BvhArrays"]
+__all__ = ["BvhArrays", "pack_nodes"]
 
 
 class BvhArrays(NamedTuple):
@@ -40,6 +46,7 @@ class BvhArrays(NamedTuple):
     node_first: np.ndarray
     node_count: np.ndarray
     prim_order: np.ndarray
+    node_records: np.ndarray
 
     @property
     def n_nodes(self) -> int:
@@ -48,3 +55,16 @@ class BvhArrays(NamedTuple):
     @property
     def nbytes(self) -> int:
         return int(sum(a.nbytes for a in self))
+
+
+def pack_nodes(node_box: np.ndarray, node_first: np.ndarray, node_count: np.ndarray) -> np.ndarray:
+    """The (n_nodes, 8) float32 records of the traversal: box rounded outwards, then first and count."""
+    records = np.empty((len(node_first), 8), dtype=np.float32)
+    lo = node_box[:, :3].astype(np.float32)
+    hi = node_box[:, 3:].astype(np.float32)
+    records[:, :3] = np.where(lo > node_box[:, :3], np.nextafter(lo, np.float32(-np.inf)), lo)
+    records[:, 3:6] = np.where(hi < node_box[:, 3:], np.nextafter(hi, np.float32(np.inf)), hi)
+    links = records.view(np.int32)
+    links[:, 6] = node_first
+    links[:, 7] = node_count
+    return records

@@ -6,7 +6,7 @@ import numpy as np
 
 from ..._jit import kernel
 
-__all__ = ["box_area6", "range_bounds", "compact", "node_depths"]
+__all__ = ["box_area6", "range_bounds", "swap_prims", "permute_prims", "compact", "node_depths"]
 
 
 @kernel
@@ -18,21 +18,51 @@ def box_area6(box):
     return 2.0 * (ex * ey + ey * ez + ex * ez)
 
 
+# The top-down builders keep each primitive's box and centroid in rows that
+# move together with its index in ``order``: row i of ``lo``, ``hi`` and
+# ``centroid`` belongs to primitive ``order[i]``. Splits then read their range
+# front to back instead of gathering through ``order`` at random.
+
+
 @kernel
-def range_bounds(lo, hi, centroid, order, start, end, box, centroid_box):
-    """Box of the primitives ``order[start:end]`` and box of their centroids, written in place."""
+def swap_prims(lo, hi, centroid, order, i, j):
+    """Exchange rows i and j of the primitive records."""
+    for k in range(3):
+        lo[i, k], lo[j, k] = lo[j, k], lo[i, k]
+        hi[i, k], hi[j, k] = hi[j, k], hi[i, k]
+        centroid[i, k], centroid[j, k] = centroid[j, k], centroid[i, k]
+    order[i], order[j] = order[j], order[i]
+
+
+@kernel
+def permute_prims(lo, hi, centroid, order, start, ranked):
+    """Reorder rows ``start .. start + len(ranked)`` so that new row ``start + i`` is old row ``start + ranked[i]``."""
+    n = ranked.shape[0]
+    rows = start + ranked
+    new_lo = lo[rows]
+    new_hi = hi[rows]
+    new_centroid = centroid[rows]
+    new_order = order[rows]
+    lo[start:start + n] = new_lo
+    hi[start:start + n] = new_hi
+    centroid[start:start + n] = new_centroid
+    order[start:start + n] = new_order
+
+
+@kernel
+def range_bounds(lo, hi, centroid, start, end, box, centroid_box):
+    """Box of the primitive rows ``start:end`` and box of their centroids, written in place."""
     for k in range(3):
         box[k] = np.inf
         box[k + 3] = -np.inf
         centroid_box[k] = np.inf
         centroid_box[k + 3] = -np.inf
     for i in range(start, end):
-        p = order[i]
         for k in range(3):
-            box[k] = min(box[k], lo[p, k])
-            box[k + 3] = max(box[k + 3], hi[p, k])
-            centroid_box[k] = min(centroid_box[k], centroid[p, k])
-            centroid_box[k + 3] = max(centroid_box[k + 3], centroid[p, k])
+            box[k] = min(box[k], lo[i, k])
+            box[k + 3] = max(box[k + 3], hi[i, k])
+            centroid_box[k] = min(centroid_box[k], centroid[i, k])
+            centroid_box[k + 3] = max(centroid_box[k + 3], centroid[i, k])
 
 
 @kernel

@@ -11,13 +11,14 @@ from __future__ import annotations
 import numpy as np
 
 from ..._jit import kernel
+from .nodes import permute_prims
 
 __all__ = ["split_object_median"]
 
 
 @kernel
-def split_object_median(centroid, order, start, end, centroid_box):
-    """Sort ``order[start:end]`` along the longest centroid axis; return the middle index."""
+def split_object_median(lo, hi, centroid, order, start, end, centroid_box):
+    """Sort the primitive rows ``start:end`` along the longest centroid axis; return the middle index."""
     axis = 0
     extent = centroid_box[3] - centroid_box[0]
     for k in (1, 2):
@@ -27,9 +28,6 @@ def split_object_median(centroid, order, start, end, centroid_box):
     if extent > 0.0:
         keys = np.empty(end - start)
         for i in range(start, end):
-            keys[i - start] = centroid[order[i], axis]
-        ranked = np.argsort(keys, kind="mergesort")
-        segment = order[start:end].copy()
-        for i in range(end - start):
-            order[start + i] = segment[ranked[i]]
+            keys[i - start] = centroid[i, axis]
+        permute_prims(lo, hi, centroid, order, start, np.argsort(keys, kind="mergesort"))
     return (start + end) // 2

@@ -7,13 +7,14 @@ primitives are, and fine for evenly spread scenes.
 from __future__ import annotations
 
 from ..._jit import kernel
+from .nodes import swap_prims
 
 __all__ = ["split_spatial_median"]
 
 
 @kernel
-def split_spatial_median(centroid, order, start, end, centroid_box):
-    """Partition ``order[start:end]`` in place at the middle of the longest centroid axis.
+def split_spatial_median(lo, hi, centroid, order, start, end, centroid_box):
+    """Partition the primitive rows ``start:end`` in place at the middle of the longest centroid axis.
 
     Returns the index of the first primitive on the right, or -1 when one side
     would be empty (all centroids on one side of the middle, or all equal).
@@ -30,10 +31,10 @@ def split_spatial_median(centroid, order, start, end, centroid_box):
     left = start
     right = end - 1
     while left <= right:
-        if centroid[order[left], axis] < middle:
+        if centroid[left, axis] < middle:
             left += 1
         else:
-            order[left], order[right] = order[right], order[left]
+            swap_prims(lo, hi, centroid, order, left, right)
             right -= 1
     if left == start or left == end:
         return -1

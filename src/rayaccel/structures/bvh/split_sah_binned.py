@@ -13,6 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..._jit import kernel
+from .nodes import swap_prims
 
 __all__ = ["split_sah_binned"]
 
@@ -39,51 +40,57 @@ def _merged_area(acc, bin_box, b):
 
 @kernel
 def split_sah_binned(lo, hi, centroid, order, start, end, centroid_box, parent_area, bins,
-                     traversal_cost, intersection_cost, scratch_box, scratch_count, scratch_area):
-    """Best binned SAH cut of ``order[start:end]``, partitioned in place.
+                     traversal_cost, intersection_cost, scratch_box, scratch_count, scratch_area, acc):
+    """Best binned SAH cut of the primitive rows ``start:end``, partitioned in place.
 
-    ``scratch_*`` are work arrays of at least ``bins`` rows, reused across nodes.
+    ``scratch_box`` (3 * bins, 6), ``scratch_count`` (3 * bins), ``scratch_area``
+    (bins) and ``acc`` (6) are work arrays reused across nodes. All three axes
+    are binned in one pass over the primitives. A node with fewer primitives
+    than bins uses one bin per primitive, which costs less and loses nothing.
     Returns ``(mid, cost)``, or ``(-1, inf)`` when all centroids coincide.
     """
+    n = end - start
+    bins = min(bins, max(n, 2))
+    scale = np.zeros(3)
+    for axis in range(3):
+        extent = centroid_box[axis + 3] - centroid_box[axis]
+        if extent > 0.0:
+            scale[axis] = bins / extent
+    for b in range(3 * bins):
+        scratch_count[b] = 0
+        for k in range(3):
+            scratch_box[b, k] = np.inf
+            scratch_box[b, k + 3] = -np.inf
+    for i in range(start, end):
+        for axis in range(3):
+            b = axis * bins + min(int((centroid[i, axis] - centroid_box[axis]) * scale[axis]), bins - 1)
+            scratch_count[b] += 1
+            _grow(scratch_box, b, lo, hi, i)
     best_cost = np.inf
     best_axis = -1
     best_bin = -1
-    acc = np.empty(6)
     for axis in range(3):
-        c_lo = centroid_box[axis]
-        extent = centroid_box[axis + 3] - c_lo
-        if extent <= 0.0:
+        if scale[axis] == 0.0:
             continue
-        scale = bins / extent
-        for b in range(bins):
-            scratch_count[b] = 0
-            for k in range(3):
-                scratch_box[b, k] = np.inf
-                scratch_box[b, k + 3] = -np.inf
-        for i in range(start, end):
-            p = order[i]
-            b = min(int((centroid[p, axis] - c_lo) * scale), bins - 1)
-            scratch_count[b] += 1
-            _grow(scratch_box, b, lo, hi, p)
+        first = axis * bins
         for k in range(3):
             acc[k] = np.inf
             acc[k + 3] = -np.inf
         right_count = 0
         for b in range(bins - 1, 0, -1):
-            right_count += scratch_count[b]
-            scratch_area[b] = _merged_area(acc, scratch_box, b) * right_count if right_count > 0 else 0.0
+            right_count += scratch_count[first + b]
+            scratch_area[b] = _merged_area(acc, scratch_box, first + b) * right_count if right_count > 0 else 0.0
         for k in range(3):
             acc[k] = np.inf
             acc[k + 3] = -np.inf
         left_count = 0
         for b in range(bins - 1):
-            left_count += scratch_count[b]
+            left_count += scratch_count[first + b]
             if left_count == 0:
                 continue
-            left_area = _merged_area(acc, scratch_box, b)
-            if left_count == end - start:
+            if left_count == n:
                 break
-            cost = left_area * left_count + scratch_area[b + 1]
+            cost = _merged_area(acc, scratch_box, first + b) * left_count + scratch_area[b + 1]
             if cost < best_cost:
                 best_cost = cost
                 best_axis = axis
@@ -91,13 +98,13 @@ def split_sah_binned(lo, hi, centroid, order, start, end, centroid_box, parent_a
     if best_axis < 0:
         return -1, np.inf
     c_lo = centroid_box[best_axis]
-    scale = bins / (centroid_box[best_axis + 3] - c_lo)
+    s = scale[best_axis]
     left = start
     right = end - 1
     while left <= right:
-        if min(int((centroid[order[left], best_axis] - c_lo) * scale), bins - 1) <= best_bin:
+        if min(int((centroid[left, best_axis] - c_lo) * s), bins - 1) <= best_bin:
             left += 1
         else:
-            order[left], order[right] = order[right], order[left]
+            swap_prims(lo, hi, centroid, order, left, right)
             right -= 1
     return left, traversal_cost + intersection_cost * best_cost / max(parent_area, 1e-300)

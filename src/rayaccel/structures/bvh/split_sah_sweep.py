@@ -15,20 +15,18 @@ from __future__ import annotations
 import numpy as np
 
 from ..._jit import kernel
+from .nodes import permute_prims
 
 __all__ = ["split_sah_sweep"]
 
 
 @kernel
-def _sorted_along(centroid, order, start, end, axis):
+def _sorted_along(centroid, start, end, axis):
+    """Rows ``start:end`` sorted by centroid along ``axis`` (as row indices)."""
     keys = np.empty(end - start)
     for i in range(start, end):
-        keys[i - start] = centroid[order[i], axis]
-    ranked = np.argsort(keys, kind="mergesort")
-    result = np.empty(end - start, dtype=order.dtype)
-    for i in range(end - start):
-        result[i] = order[start + ranked[i]]
-    return result
+        keys[i - start] = centroid[i, axis]
+    return start + np.argsort(keys, kind="mergesort")
 
 
 @kernel
@@ -41,7 +39,7 @@ def _area(lo_x, lo_y, lo_z, hi_x, hi_y, hi_z):
 
 @kernel
 def split_sah_sweep(lo, hi, centroid, order, start, end, parent_area, traversal_cost, intersection_cost):
-    """Best SAH cut of ``order[start:end]`` over all sorted positions on all axes.
+    """Best SAH cut of the primitive rows ``start:end`` over all sorted positions on all axes.
 
     Reorders the range along the winning axis and returns ``(mid, cost)``;
     ``(-1, inf)`` when there is nothing to split.
@@ -52,7 +50,7 @@ def split_sah_sweep(lo, hi, centroid, order, start, end, parent_area, traversal_
     best_index = -1
     suffix_area = np.empty(n)
     for axis in range(3):
-        sorted_prims = _sorted_along(centroid, order, start, end, axis)
+        sorted_prims = _sorted_along(centroid, start, end, axis)
         bx0 = by0 = bz0 = np.inf
         bx1 = by1 = bz1 = -np.inf
         for i in range(n - 1, 0, -1):
@@ -83,5 +81,5 @@ def split_sah_sweep(lo, hi, centroid, order, start, end, parent_area, traversal_
                 best_index = i
     if best_axis < 0:
         return -1, np.inf
-    order[start:end] = _sorted_along(centroid, order, start, end, best_axis)
+    permute_prims(lo, hi, centroid, order, start, _sorted_along(centroid, start, end, best_axis) - start)
     return start + best_index, traversal_cost + intersection_cost * best_cost / max(parent_area, 1e-300)

@@ -101,19 +101,21 @@ def _project(x, y, z, normals, j):
 
 
 @parallel_kernel
-def bvh_trace_kernel(bounds_kind, node_box, node_volume, node_first, node_count, prim_order, kind, geom,
+def bvh_trace_kernel(bounds_kind, node_box, node_volume, node_links, prim_order, kind, geom,
                      normals, origins, directions, t_min, t_max, any_hit, stack_node, stack_t,
                      out_t, out_prim, out_u, out_v, work):
-    """Trace every ray through the BVH; ``geom`` is in leaf order (``geom[prim_order]``)."""
+    """Trace every ray through the BVH; ``geom`` is in leaf order (``geom[prim_order]``).
+
+    ``node_box`` is the packed float32 record array of :func:`.layout.pack_nodes`
+    and ``node_links`` the same memory seen as int32 (columns 6 and 7: first, count).
+    """
     count_work = work.shape[0] > 0
     n_normals = 7 if bounds_kind == KDOP else 3
     for i in prange(origins.shape[0]):
         ox, oy, oz = origins[i, 0], origins[i, 1], origins[i, 2]
         dx, dy, dz = directions[i, 0], directions[i, 1], directions[i, 2]
         ray = ray_setup(ox, oy, oz, dx, dy, dz)
-        tid = thread_id()
-        nodes_here = stack_node[tid]
-        entries_here = stack_t[tid]
+        tid = thread_id()  # stacks are indexed in place: a row view would touch a shared refcount per ray
         proj_o = (ox, oy, oz, 0.0, 0.0, 0.0, 0.0)
         proj_inv = (1.0 / dx, 1.0 / dy, 1.0 / dz, 0.0, 0.0, 0.0, 0.0)
         if n_normals == 7:
@@ -135,9 +137,9 @@ def bvh_trace_kernel(bounds_kind, node_box, node_volume, node_first, node_count,
             node = -1
         while node >= 0:
             n_nodes += 1
-            count = node_count[node]
+            count = node_links[node, 7]
             if count > 0:
-                first = node_first[node]
+                first = node_links[node, 6]
                 for k in range(first, first + count):
                     n_tests += 1
                     t, u, v = intersect_prim(kind, geom, k, ray, ray_t_min, best_t)
@@ -149,7 +151,7 @@ def bvh_trace_kernel(bounds_kind, node_box, node_volume, node_first, node_count,
                     break
                 node = -1
             else:
-                near = node_first[node]
+                near = node_links[node, 6]
                 far = near + 1
                 t_near = _enter(bounds_kind, node_box, node_volume, near, ray, proj_o, proj_inv, ray_t_min, best_t)
                 t_far = _enter(bounds_kind, node_box, node_volume, far, ray, proj_o, proj_inv, ray_t_min, best_t)
@@ -161,13 +163,13 @@ def bvh_trace_kernel(bounds_kind, node_box, node_volume, node_first, node_count,
                 else:
                     node = near
                     if t_far != np.inf:
-                        nodes_here[sp] = far
-                        entries_here[sp] = t_far
+                        stack_node[tid, sp] = far
+                        stack_t[tid, sp] = t_far
                         sp += 1
             while node < 0 and sp > 0:
                 sp -= 1
-                if entries_here[sp] <= best_t:
-                    node = nodes_here[sp]
+                if stack_t[tid, sp] <= best_t:
+                    node = stack_node[tid, sp]
         store_hit(i, best_t, best_prim, best_u, best_v, out_t, out_prim, out_u, out_v)
         if count_work:
             work[i, 0] = n_nodes

@@ -1,13 +1,14 @@
-"""Grid and brute force against Embree (embreex), same rays, same run.
+"""rayaccel's structures against Embree (embreex), same rays, same run.
 
-For each scene: build seconds and closest-hit Mrays/s on primary (pinhole
-camera) and incoherent rays, any-hit Mrays/s on primary rays, and the ratio of
-the grid's throughput to Embree's on 1 and 2 threads (embreex queries run on
-one thread; the 2-thread figure splits the rays over two Python threads, as
-embreex releases the GIL). Brute force is timed on a subset of the rays.
-Figures vary by +-30% on a shared machine: read the ratios, not the absolutes.
+For each scene and method: build seconds and closest-hit Mrays/s on primary
+(pinhole camera) and incoherent (origins in the scene box, uniform directions)
+rays, any-hit Mrays/s on primary rays, and the ratio of each to Embree's on 2
+threads (embreex queries run on one thread; the 2-thread figure splits the rays
+over two Python threads, as embreex releases the GIL). Brute force is timed on
+a subset of the rays. Figures vary by +-30% on a shared machine: read the
+ratios, not the absolutes.
 
-    python benchmarks/bench_grid.py [--scenes bunny dragon] [--side 1024]
+    python benchmarks/bench_structures.py [--scenes bunny dragon] [--methods grid bvh-binned] [--side 1024]
 """
 
 from __future__ import annotations
@@ -51,18 +52,20 @@ class EmbreeScene:
         return np.concatenate(results)
 
 
-def bench_scene(name: str, side: int, have_embree: bool, console: Console) -> list[dict]:
+def bench_scene(name: str, methods: list[str], side: int, have_embree: bool, console: Console) -> list[dict]:
     scene = ra.load_scene(name)
     rays = {"primary": primary_rays(scene, side), "incoherent": incoherent_rays(scene, side * side)}
     rows = []
-    grid = ra.build(scene, "grid")
-    build = median_seconds(lambda: ra.build(scene, "grid"), repeats=3)
-    row = {"scene": name, "method": "rayaccel grid", "build": build}
-    for label, (o, d) in rays.items():
-        row[label] = len(o) / median_seconds(lambda: grid.intersect(o, d)) / 1e6
-    o, d = rays["primary"]
-    row["any-hit"] = len(o) / median_seconds(lambda: grid.occluded(o, d)) / 1e6
-    rows.append(row)
+    for method in methods:
+        accel = ra.build(scene, method)
+        build = median_seconds(lambda: ra.build(scene, method), repeats=3)
+        row = {"scene": name, "method": f"rayaccel {method}", "build": build}
+        for label, (o, d) in rays.items():
+            row[label] = len(o) / median_seconds(lambda: accel.intersect(o, d)) / 1e6
+        o, d = rays["primary"]
+        row["any-hit"] = len(o) / median_seconds(lambda: accel.occluded(o, d)) / 1e6
+        rows.append(row)
+    reference_hits = accel.intersect(*rays["primary"]).prim
 
     brute = ra.build(scene, "none")
     subset = max(64, int(2e9 / len(scene) / 50))
@@ -74,8 +77,8 @@ def bench_scene(name: str, side: int, have_embree: bool, console: Console) -> li
 
     if have_embree:
         embree = EmbreeScene(scene)
-        agreement = np.mean(embree.query(*rays["primary"], 1) == grid.intersect(*rays["primary"]).prim)
-        console.print(f"{name}: Embree and the grid report the same primitive for {agreement:.2%} of primary rays "
+        agreement = np.mean(embree.query(*rays["primary"], 1) == reference_hits)
+        console.print(f"{name}: Embree and rayaccel report the same primitive for {agreement:.2%} of primary rays "
                       "(float32 vs float64)")
         for threads in (1, 2):
             row = {"scene": name, "method": f"Embree (embreex), {threads} thread{'s' * (threads > 1)}",
@@ -91,6 +94,7 @@ def bench_scene(name: str, side: int, have_embree: bool, console: Console) -> li
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--scenes", nargs="+", default=["bunny", "dragon"])
+    parser.add_argument("--methods", nargs="+", default=["grid", "bvh-binned", "bvh-lbvh"])
     parser.add_argument("--side", type=int, default=1024, help="primary rays are side x side; as many incoherent")
     args = parser.parse_args()
     console = Console(width=200)
@@ -98,9 +102,9 @@ def main() -> None:
     rows = []
     for name in args.scenes:
         with console.status(f"benchmarking {name}"):
-            rows += bench_scene(name, args.side, have_embree, console)
+            rows += bench_scene(name, args.methods, args.side, have_embree, console)
     table = Table(title=f"closest hit, Mrays/s ({args.side}x{args.side} primary, as many incoherent); "
-                        "ratio = grid / Embree 2 threads")
+                        "ratio = method / Embree 2 threads")
     for column in ("scene", "method", "build s", "primary", "incoherent", "any-hit primary", "ratio primary",
                    "ratio incoherent", "ratio any-hit"):
         table.add_column(column, justify="left" if column in ("scene", "method") else "right")
