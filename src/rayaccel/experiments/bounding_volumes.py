@@ -55,9 +55,10 @@ def _test_all_volumes(bounds_kind, box, volume, origins, directions, n_nodes):
         proj_inv = (1.0 / dx, 1.0 / dy, 1.0 / dz, 1.0 / _project(dx, dy, dz, KDOP_NORMALS, 3),
                     1.0 / _project(dx, dy, dz, KDOP_NORMALS, 4), 1.0 / _project(dx, dy, dz, KDOP_NORMALS, 5),
                     1.0 / _project(dx, dy, dz, KDOP_NORMALS, 6))
+        near = (0 if dx >= 0.0 else 3, 1 if dy >= 0.0 else 4, 2 if dz >= 0.0 else 5)
         count = 0
         for node in range(n_nodes):
-            if _enter(bounds_kind, box, volume, node, ray, proj_o, proj_inv, 0.0, np.inf) != np.inf:
+            if _enter(bounds_kind, box, volume, node, ray, proj_o, proj_inv, near, 0.0, np.inf) != np.inf:
                 count += 1
         hits[i] = count
     return hits

@@ -46,10 +46,21 @@ def _slab(lo, hi, o, inv, enter, exit_):
 
 
 @inline_kernel
-def _enter_box(box, node, ox, oy, oz, ix, iy, iz, t_min, t_max):
-    enter, exit_ = _slab(box[node, 0], box[node, 3], ox, ix, t_min, t_max)
-    enter, exit_ = _slab(box[node, 1], box[node, 4], oy, iy, enter, exit_)
-    enter, exit_ = _slab(box[node, 2], box[node, 5], oz, iz, enter, exit_)
+def _near_far(near, far, enter, exit_):
+    if near > enter:
+        enter = near
+    if far < exit_:
+        exit_ = far
+    return enter, exit_
+
+
+@inline_kernel
+def _enter_box(box, node, ox, oy, oz, ix, iy, iz, near_x, near_y, near_z, t_min, t_max):
+    """Slab test with the near face of each axis chosen once per ray (``near_* = 3`` where the
+    direction is negative), as in pbrt's ``dirIsNeg``: no swap per node."""
+    enter, exit_ = _near_far((box[node, near_x] - ox) * ix, (box[node, 3 - near_x] - ox) * ix, t_min, t_max)
+    enter, exit_ = _near_far((box[node, near_y] - oy) * iy, (box[node, 5 - near_y] - oy) * iy, enter, exit_)
+    enter, exit_ = _near_far((box[node, near_z] - oz) * iz, (box[node, 7 - near_z] - oz) * iz, enter, exit_)
     return enter if enter <= exit_ else np.inf
 
 
@@ -86,10 +97,11 @@ def _enter_sphere(volume, node, ox, oy, oz, dx, dy, dz, t_min, t_max):
 
 
 @inline_kernel
-def _enter(bounds_kind, box, volume, node, ray, proj_o, proj_inv, t_min, t_max):
+def _enter(bounds_kind, box, volume, node, ray, proj_o, proj_inv, near, t_min, t_max):
     """Entry distance of the ray into ``node``'s volume within ``[t_min, t_max]``; inf if it misses."""
     if bounds_kind == BOX:
-        return _enter_box(box, node, ray[0], ray[1], ray[2], proj_inv[0], proj_inv[1], proj_inv[2], t_min, t_max)
+        return _enter_box(box, node, ray[0], ray[1], ray[2], proj_inv[0], proj_inv[1], proj_inv[2],
+                          near[0], near[1], near[2], t_min, t_max)
     if bounds_kind == KDOP:
         return _enter_kdop(volume, node, proj_o, proj_inv, t_min, t_max)
     return _enter_sphere(volume, node, ray[0], ray[1], ray[2], ray[3], ray[4], ray[5], t_min, t_max)
@@ -124,6 +136,7 @@ def bvh_trace_kernel(bounds_kind, node_box, node_volume, node_links, prim_order,
             proj_inv = (proj_inv[0], proj_inv[1], proj_inv[2], 1.0 / _project(dx, dy, dz, normals, 3),
                         1.0 / _project(dx, dy, dz, normals, 4), 1.0 / _project(dx, dy, dz, normals, 5),
                         1.0 / _project(dx, dy, dz, normals, 6))
+        near_faces = (0 if proj_inv[0] >= 0.0 else 3, 1 if proj_inv[1] >= 0.0 else 4, 2 if proj_inv[2] >= 0.0 else 5)
         ray_t_min = t_min[i]
         best_t = t_max[i]
         best_prim = -1
@@ -133,7 +146,7 @@ def bvh_trace_kernel(bounds_kind, node_box, node_volume, node_links, prim_order,
         n_tests = 0
         node = 0
         sp = 0
-        if _enter(bounds_kind, node_box, node_volume, 0, ray, proj_o, proj_inv, ray_t_min, best_t) == np.inf:
+        if _enter(bounds_kind, node_box, node_volume, 0, ray, proj_o, proj_inv, near_faces, ray_t_min, best_t) == np.inf:
             node = -1
         while node >= 0:
             n_nodes += 1
@@ -153,8 +166,8 @@ def bvh_trace_kernel(bounds_kind, node_box, node_volume, node_links, prim_order,
             else:
                 near = node_links[node, 6]
                 far = near + 1
-                t_near = _enter(bounds_kind, node_box, node_volume, near, ray, proj_o, proj_inv, ray_t_min, best_t)
-                t_far = _enter(bounds_kind, node_box, node_volume, far, ray, proj_o, proj_inv, ray_t_min, best_t)
+                t_near = _enter(bounds_kind, node_box, node_volume, near, ray, proj_o, proj_inv, near_faces, ray_t_min, best_t)
+                t_far = _enter(bounds_kind, node_box, node_volume, far, ray, proj_o, proj_inv, near_faces, ray_t_min, best_t)
                 if t_far < t_near:
                     near, far = far, near
                     t_near, t_far = t_far, t_near
