@@ -4,30 +4,46 @@ from __future__ import annotations
 
 import contextlib
 
-__all__ = ["progress_bar", "status"]
+__all__ = ["progress_bar", "status", "table_console"]
+
+
+def _terminal():
+    """A rich console on standard error, or None when that is not a terminal (logs, pipes, CI)."""
+    from rich.console import Console
+
+    console = Console(stderr=True)
+    return console if console.is_terminal else None
+
+
+def table_console():
+    """A rich console for tables on standard output, 120 columns wide when not a terminal."""
+    from rich.console import Console
+
+    console = Console()
+    return console if console.is_terminal else Console(width=120)
 
 
 @contextlib.contextmanager
 def progress_bar(description: str, total: int, enabled: bool = True):
-    """Yield ``advance(done)``: report ``done`` of ``total`` units finished."""
-    if not enabled:
+    """Yield ``advance(done)``: report ``done`` of ``total`` units finished (on a terminal)."""
+    console = _terminal() if enabled else None
+    if console is None:
         yield lambda done, total_=None: None
         return
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
     with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
-                  TimeElapsedColumn(), transient=True) as progress:
+                  TimeElapsedColumn(), transient=True, console=console) as progress:
         task = progress.add_task(description, total=total)
         yield lambda done, total_=None: progress.update(task, completed=done)
 
 
 @contextlib.contextmanager
 def status(message: str, enabled: bool = True):
-    """A spinner with ``message`` while the block runs."""
-    if not enabled:
+    """A spinner with ``message`` while the block runs (on a terminal)."""
+    console = _terminal() if enabled else None
+    if console is None:
         yield
         return
-    from rich.console import Console
-
-    with Console(stderr=True).status(message):
+    with console.status(message):
         yield

@@ -121,25 +121,26 @@ def _stats_table(rows: list[dict], title: str):
 
 
 def _cmd_stats(args) -> None:
-    from rich.console import Console
+    from ._progress import table_console
 
     scene = _load(args.scene, args.quiet)
     accel = _build(scene, args.method, _parse_options(args.option), args.quiet)
-    Console().print(_stats_table([accel.stats()], f"{args.scene} ({len(scene):,} primitives)"))
+    table_console().print(_stats_table([accel.stats()], f"{args.scene} ({len(scene):,} primitives)"))
 
 
 def _cmd_demo(args) -> None:
-    from rich.console import Console
     from rich.table import Table
 
+    from ._progress import table_console
     from .structures.registry import methods
 
-    console = Console()
+    console = table_console()
     scene = _load(args.scene, args.quiet)
     out_dir = Path(args.out)
     table = Table(title=f"rayaccel demo: {args.scene}, {len(scene):,} primitives, closest-hit primary rays")
-    for column in ("method", "build s", "image", "Mrays/s", "cells or nodes/ray", "tests/ray", "shadow Mrays/s"):
-        table.add_column(column, justify="left" if column == "method" else "right")
+    table.add_column("method", no_wrap=True, min_width=len(max(methods(), key=len)))
+    for column in ("build s", "image", "Mrays/s", "cells or nodes/ray", "tests/ray", "shadow Mrays/s"):
+        table.add_column(column, justify="right")
     written = []
     for method in methods():
         accel = _build(scene, method, {}, args.quiet)
