@@ -141,6 +141,15 @@ class BoundingVolumeHierarchy(Accelerator):
         return result
 
 
+def _top_down(pb, strategy, max_leaf_size, c_t, c_i, bins=0, order=None, sorted_codes=None):
+    """Run the top-down builder with a split strategy; returns the layout arrays and leaf order."""
+    order = np.arange(len(pb.lo), dtype=np.int64) if order is None else order
+    codes = np.zeros(0, np.int64) if sorted_codes is None else sorted_codes
+    box, first, count = build_top_down(pb.lo, pb.hi, pb.centroid, order, codes, strategy, max_leaf_size, bins,
+                                       c_t, c_i, thread_count())
+    return box, first, count, order
+
+
 class BinnedSah(BoundingVolumeHierarchy):
     """``bvh-binned``: top-down binned SAH (Wald 2007), the default BVH.
 
@@ -158,10 +167,7 @@ class BinnedSah(BoundingVolumeHierarchy):
         super().__init__(scene, bins=bins, **options)
 
     def _build(self, pb, max_leaf_size, c_t, c_i, bins):
-        order = np.arange(len(pb.lo), dtype=np.int64)
-        box, first, count = build_top_down(pb.lo, pb.hi, pb.centroid, order, np.zeros(0, np.int64), SAH_BINNED,
-                                           max_leaf_size, bins, c_t, c_i, thread_count())
-        return box, first, count, order
+        return _top_down(pb, SAH_BINNED, max_leaf_size, c_t, c_i, bins=bins)
 
 
 class SweepSah(BoundingVolumeHierarchy):
@@ -173,10 +179,7 @@ class SweepSah(BoundingVolumeHierarchy):
     default_leaf_size = 8
 
     def _build(self, pb, max_leaf_size, c_t, c_i):
-        order = np.arange(len(pb.lo), dtype=np.int64)
-        box, first, count = build_top_down(pb.lo, pb.hi, pb.centroid, order, np.zeros(0, np.int64), SAH_SWEEP,
-                                           max_leaf_size, 0, c_t, c_i, thread_count())
-        return box, first, count, order
+        return _top_down(pb, SAH_SWEEP, max_leaf_size, c_t, c_i)
 
 
 class SpatialMedian(BoundingVolumeHierarchy):
@@ -186,10 +189,7 @@ class SpatialMedian(BoundingVolumeHierarchy):
     method = "bvh-median-space"
 
     def _build(self, pb, max_leaf_size, c_t, c_i):
-        order = np.arange(len(pb.lo), dtype=np.int64)
-        box, first, count = build_top_down(pb.lo, pb.hi, pb.centroid, order, np.zeros(0, np.int64),
-                                           SPATIAL_MEDIAN, max_leaf_size, 0, c_t, c_i, thread_count())
-        return box, first, count, order
+        return _top_down(pb, SPATIAL_MEDIAN, max_leaf_size, c_t, c_i)
 
 
 class ObjectMedian(BoundingVolumeHierarchy):
@@ -199,10 +199,7 @@ class ObjectMedian(BoundingVolumeHierarchy):
     method = "bvh-median-object"
 
     def _build(self, pb, max_leaf_size, c_t, c_i):
-        order = np.arange(len(pb.lo), dtype=np.int64)
-        box, first, count = build_top_down(pb.lo, pb.hi, pb.centroid, order, np.zeros(0, np.int64),
-                                           OBJECT_MEDIAN, max_leaf_size, 0, c_t, c_i, thread_count())
-        return box, first, count, order
+        return _top_down(pb, OBJECT_MEDIAN, max_leaf_size, c_t, c_i)
 
 
 class LinearBvh(BoundingVolumeHierarchy):
@@ -215,9 +212,7 @@ class LinearBvh(BoundingVolumeHierarchy):
     def _build(self, pb, max_leaf_size, c_t, c_i):
         codes = morton_codes(pb.centroid)
         order = np.argsort(codes, kind="stable").astype(np.int64)
-        box, first, count = build_top_down(pb.lo, pb.hi, pb.centroid, order, codes[order], MORTON,
-                                           max_leaf_size, 0, c_t, c_i, thread_count())
-        return box, first, count, order
+        return _top_down(pb, MORTON, max_leaf_size, c_t, c_i, order=order, sorted_codes=codes[order])
 
 
 class Agglomerative(BoundingVolumeHierarchy):

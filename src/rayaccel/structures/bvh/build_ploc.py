@@ -30,6 +30,20 @@ def _merged_area(node_box, a, b):
 
 
 @kernel
+def _merge(node_box, left, right, clusters, i, j, node):
+    """Make ``node`` the parent of clusters i and j; it takes i's place, j's place is freed."""
+    a = clusters[i]
+    b = clusters[j]
+    left[node] = a
+    right[node] = b
+    for k in range(3):
+        node_box[node, k] = min(node_box[a, k], node_box[b, k])
+        node_box[node, k + 3] = max(node_box[a, k + 3], node_box[b, k + 3])
+    clusters[i] = node
+    clusters[j] = -1
+
+
+@kernel
 def _cluster(lo, hi, morton_order, radius):
     """Merge clusters until one is left; returns the binary tree (leaves 0..n-1 are primitives)."""
     n = lo.shape[0]
@@ -64,30 +78,12 @@ def _cluster(lo, hi, morton_order, radius):
         for i in range(n_clusters):
             j = nearest[i]
             if j > i and nearest[j] == i:
-                a = clusters[i]
-                b = clusters[j]
-                node = n_nodes
+                _merge(node_box, left, right, clusters, i, j, n_nodes)
                 n_nodes += 1
-                left[node] = a
-                right[node] = b
-                for k in range(3):
-                    node_box[node, k] = min(node_box[a, k], node_box[b, k])
-                    node_box[node, k + 3] = max(node_box[a, k + 3], node_box[b, k + 3])
-                clusters[i] = node
-                clusters[j] = -1
                 merged_any = True
         if not merged_any:  # cannot happen with a symmetric distance; kept as a guard against loops
-            a = clusters[0]
-            b = clusters[1]
-            node = n_nodes
+            _merge(node_box, left, right, clusters, 0, 1, n_nodes)
             n_nodes += 1
-            left[node] = a
-            right[node] = b
-            for k in range(3):
-                node_box[node, k] = min(node_box[a, k], node_box[b, k])
-                node_box[node, k + 3] = max(node_box[a, k + 3], node_box[b, k + 3])
-            clusters[0] = node
-            clusters[1] = -1
         kept = 0
         for i in range(n_clusters):
             if clusters[i] >= 0:

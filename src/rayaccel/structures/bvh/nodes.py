@@ -6,7 +6,7 @@ import numpy as np
 
 from ..._jit import kernel
 
-__all__ = ["box_area6", "range_bounds", "swap_prims", "permute_prims", "compact", "node_depths"]
+__all__ = ["box_area6", "longest_axis", "range_bounds", "swap_prims", "permute_prims", "compact", "node_depths"]
 
 
 @kernel
@@ -16,6 +16,18 @@ def box_area6(box):
     ey = max(box[4] - box[1], 0.0)
     ez = max(box[5] - box[2], 0.0)
     return 2.0 * (ex * ey + ey * ez + ex * ez)
+
+
+@kernel
+def longest_axis(box):
+    """``(axis, extent)`` of the longest side of a box ``(lo_x, lo_y, lo_z, hi_x, hi_y, hi_z)``."""
+    axis = 0
+    extent = box[3] - box[0]
+    for k in (1, 2):
+        if box[k + 3] - box[k] > extent:
+            axis = k
+            extent = box[k + 3] - box[k]
+    return axis, extent
 
 
 # The top-down builders keep each primitive's box and centroid in rows that

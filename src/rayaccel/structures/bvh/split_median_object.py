@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..._jit import kernel
-from .nodes import permute_prims
+from .nodes import longest_axis, permute_prims
 
 __all__ = ["split_object_median"]
 
@@ -19,12 +19,7 @@ __all__ = ["split_object_median"]
 @kernel
 def split_object_median(lo, hi, centroid, order, start, end, centroid_box):
     """Sort the primitive rows ``start:end`` along the longest centroid axis; return the middle index."""
-    axis = 0
-    extent = centroid_box[3] - centroid_box[0]
-    for k in (1, 2):
-        if centroid_box[k + 3] - centroid_box[k] > extent:
-            axis = k
-            extent = centroid_box[k + 3] - centroid_box[k]
+    axis, extent = longest_axis(centroid_box)
     if extent > 0.0:
         keys = np.empty(end - start)
         for i in range(start, end):

@@ -7,7 +7,7 @@ primitives are, and fine for evenly spread scenes.
 from __future__ import annotations
 
 from ..._jit import kernel
-from .nodes import swap_prims
+from .nodes import longest_axis, swap_prims
 
 __all__ = ["split_spatial_median"]
 
@@ -19,12 +19,7 @@ def split_spatial_median(lo, hi, centroid, order, start, end, centroid_box):
     Returns the index of the first primitive on the right, or -1 when one side
     would be empty (all centroids on one side of the middle, or all equal).
     """
-    axis = 0
-    extent = centroid_box[3] - centroid_box[0]
-    for k in (1, 2):
-        if centroid_box[k + 3] - centroid_box[k] > extent:
-            axis = k
-            extent = centroid_box[k + 3] - centroid_box[k]
+    axis, extent = longest_axis(centroid_box)
     if extent <= 0.0:
         return -1
     middle = 0.5 * (centroid_box[axis] + centroid_box[axis + 3])

@@ -29,11 +29,21 @@ def _sorted_along(centroid, start, end, axis):
     return start + np.argsort(keys, kind="mergesort")
 
 
+_EMPTY_BOX = (np.inf, np.inf, np.inf, -np.inf, -np.inf, -np.inf)
+
+
 @kernel
-def _area(lo_x, lo_y, lo_z, hi_x, hi_y, hi_z):
-    ex = hi_x - lo_x
-    ey = hi_y - lo_y
-    ez = hi_z - lo_z
+def _grown(box, lo, hi, p):
+    """The box (a 6-tuple) grown by primitive row ``p``."""
+    return (min(box[0], lo[p, 0]), min(box[1], lo[p, 1]), min(box[2], lo[p, 2]),
+            max(box[3], hi[p, 0]), max(box[4], hi[p, 1]), max(box[5], hi[p, 2]))
+
+
+@kernel
+def _area(box):
+    ex = box[3] - box[0]
+    ey = box[4] - box[1]
+    ez = box[5] - box[2]
     return 2.0 * (ex * ey + ey * ez + ex * ez)
 
 
@@ -51,30 +61,17 @@ def split_sah_sweep(lo, hi, centroid, order, start, end, parent_area, traversal_
     suffix_area = np.empty(n)
     for axis in range(3):
         sorted_prims = _sorted_along(centroid, start, end, axis)
-        bx0 = by0 = bz0 = np.inf
-        bx1 = by1 = bz1 = -np.inf
+        box = _EMPTY_BOX
         for i in range(n - 1, 0, -1):
-            p = sorted_prims[i]
-            bx0 = min(bx0, lo[p, 0])
-            by0 = min(by0, lo[p, 1])
-            bz0 = min(bz0, lo[p, 2])
-            bx1 = max(bx1, hi[p, 0])
-            by1 = max(by1, hi[p, 1])
-            bz1 = max(bz1, hi[p, 2])
-            suffix_area[i] = _area(bx0, by0, bz0, bx1, by1, bz1)
-        bx0 = by0 = bz0 = np.inf
-        bx1 = by1 = bz1 = -np.inf
+            box = _grown(box, lo, hi, sorted_prims[i])
+            suffix_area[i] = _area(box)
+        box = _EMPTY_BOX
         for i in range(1, n):
             p = sorted_prims[i - 1]
-            bx0 = min(bx0, lo[p, 0])
-            by0 = min(by0, lo[p, 1])
-            bz0 = min(bz0, lo[p, 2])
-            bx1 = max(bx1, hi[p, 0])
-            by1 = max(by1, hi[p, 1])
-            bz1 = max(bz1, hi[p, 2])
+            box = _grown(box, lo, hi, p)
             if centroid[p, axis] == centroid[sorted_prims[i], axis]:
                 continue  # no plane separates equal centroids
-            cost = _area(bx0, by0, bz0, bx1, by1, bz1) * i + suffix_area[i] * (n - i)
+            cost = _area(box) * i + suffix_area[i] * (n - i)
             if cost < best_cost:
                 best_cost = cost
                 best_axis = axis

@@ -16,14 +16,13 @@ ordering pbrt-v4 uses in ``Bounds3::IntersectP``.
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 from numba import prange
 
 from ..._jit import inline_kernel, parallel_kernel, thread_id
 from ...geometry.kdop import KDOP_NORMALS
 from ...geometry.primitive import intersect_prim, ray_setup
+from ...geometry.sphere import sphere_span
 from ..base import is_closer, store_hit
 
 __all__ = ["BOX", "SPHERE_VOLUME", "KDOP", "KDOP_NORMALS", "bvh_trace_kernel"]
@@ -75,22 +74,8 @@ def _enter_kdop(volume, node, proj_o, proj_inv, t_min, t_max):
 
 @inline_kernel
 def _enter_sphere(volume, node, ox, oy, oz, dx, dy, dz, t_min, t_max):
-    fx = ox - volume[node, 0]
-    fy = oy - volume[node, 1]
-    fz = oz - volume[node, 2]
-    r = volume[node, 3]
-    a = dx * dx + dy * dy + dz * dz
-    b = -(fx * dx + fy * dy + fz * dz)
-    s = b / a
-    lx = fx + s * dx
-    ly = fy + s * dy
-    lz = fz + s * dz
-    disc = r * r - (lx * lx + ly * ly + lz * lz)
-    if disc < 0.0:
-        return np.inf
-    half = math.sqrt(disc * a) / a
-    near = s - half
-    far = s + half
+    near, far = sphere_span(volume[node, 0], volume[node, 1], volume[node, 2], volume[node, 3],
+                            ox, oy, oz, dx, dy, dz)
     if far < t_min or near > t_max:
         return np.inf
     return max(near, t_min)
