@@ -169,7 +169,8 @@ def save_png(image: np.ndarray, path) -> Path:
 
 
 def save_heatmap(values: np.ndarray, path, label: str, title: str = "") -> Path:
-    """Write a per-pixel cost picture with a low-high colour scale (matplotlib)."""
+    """Write a per-pixel cost picture with a low-high colour scale (matplotlib); the scale ends at
+    the 99.5th percentile so that a few extreme pixels do not wash out the rest."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -179,12 +180,13 @@ def save_heatmap(values: np.ndarray, path, label: str, title: str = "") -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
     height, width = values.shape
     fig, ax = plt.subplots(figsize=(6.4, 6.4 * height / width + 0.3), dpi=max(100, width // 6))
-    shown = ax.imshow(values, cmap="inferno", interpolation="nearest", vmin=0)
+    top = max(float(np.percentile(values, 99.5)), 1.0)
+    shown = ax.imshow(values, cmap="inferno", interpolation="nearest", vmin=0, vmax=top)
     ax.set_axis_off()
     if title:
         ax.set_title(title, fontsize=9)
     bar = fig.colorbar(shown, ax=ax, fraction=0.046, pad=0.02)
-    bar.set_label(f"{label} per pixel (low - high)")
+    bar.set_label(f"{label} per pixel, low - high (max {int(values.max())})")
     fig.savefig(path, bbox_inches="tight")
     plt.close(fig)
     return path
