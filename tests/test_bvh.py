@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 import rayaccel as ra
 from rayaccel.geometry.kdop import KDOP_NORMALS
@@ -162,3 +164,20 @@ def test_counters(small_dragon):
     assert (hits.counters.tests[hits.hit] >= 1).all()
     assert (hits.counters.tests <= len(small_dragon)).all()
     assert (hits.counters.mailbox_skips == 0).all()
+
+
+@settings(max_examples=30, deadline=None)
+@given(
+    n=st.integers(1, 80),
+    seed=st.integers(0, 2**16),
+    method=st.sampled_from(BUILDERS),
+    bounds=st.sampled_from(BOUNDS),
+    leaf=st.integers(1, 9),
+)
+def test_random_scenes_property(n, seed, method, bounds, leaf):
+    scene = ra.random_spheres(n, seed=seed, fill=0.2)
+    origins, directions = random_rays(scene, 200, seed=seed)
+    reference = ra.build(scene, "none").intersect(origins, directions)
+    accel = ra.build(scene, method, bounds=bounds, max_leaf_size=leaf)
+    assert_same_hits(reference, accel.intersect(origins, directions))
+    assert (accel.bvh.node_count <= leaf).all()
