@@ -75,3 +75,11 @@ def test_bounding_volume_experiment(tmp_path):
     table = (tmp_path / "bounding-volumes.md").read_text()
     assert "14-DOP" in table and "sphere (Ritter over primitives)" in table and "aabb" in table
     assert (tmp_path / "bounding-volumes.png").exists()
+
+
+def test_grid_resolution_experiment(tmp_path):
+    assert main(["--quiet", "experiment", "grid-resolution", "--scenes", "spheres:500", "--size", "16",
+                 "--out", str(tmp_path)]) == 0
+    table = (tmp_path / "grid-resolution.md").read_text()
+    assert "cost model optimum" in table and "| spheres:500 | 64 |" in table
+    assert (tmp_path / "grid-resolution.png").exists()

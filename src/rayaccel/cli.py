@@ -181,6 +181,14 @@ def _cmd_experiment(args) -> None:
         with progress_bar("which BVH is better", len(scenes) * n_builders, enabled=not args.quiet) as advance:
             rows = bvh_builders.run(scenes, side=args.size, heatmap_dir=Path(args.out), progress=advance)
         table, plot = bvh_builders.write_report(rows, args.out, args.size)
+    elif args.name == "grid-resolution":
+        from .experiments import grid_resolution
+
+        scenes = args.scenes or ["bunny", "spheres:100000"]
+        total = len(scenes) * len(grid_resolution.DENSITIES)
+        with progress_bar("grid resolution sweep", total, enabled=not args.quiet) as advance:
+            rows = grid_resolution.run(scenes, side=args.size, progress=advance)
+        table, plot = grid_resolution.write_report(rows, args.out, args.size)
     else:
         from .experiments import bounding_volumes
 
@@ -251,9 +259,9 @@ def _parser() -> argparse.ArgumentParser:
     stats.set_defaults(func=_cmd_stats)
 
     experiment = sub.add_parser("experiment", help="reproduce a lecture experiment")
-    experiment.add_argument("name", choices=["grid-vs-none", "bvh", "bounding-volumes"])
+    experiment.add_argument("name", choices=["grid-vs-none", "grid-resolution", "bvh", "bounding-volumes"])
     experiment.add_argument("--max-n", type=int, default=1_000_000, help="grid-vs-none: largest scene size")
-    experiment.add_argument("--scenes", nargs="+", help="bvh, bounding-volumes: scenes to measure")
+    experiment.add_argument("--scenes", nargs="+", help="grid-resolution, bvh, bounding-volumes: scenes to measure")
     experiment.add_argument("--size", type=int, default=512, help="image width and height (primary rays per side)")
     experiment.add_argument("--out", default="rayaccel-out", help="folder for the table and plot")
     experiment.set_defaults(func=_cmd_experiment)
