@@ -1,14 +1,15 @@
 """Measured costs of the grid cost model: one primitive test ``C_i`` and one cell step ``C_c``.
 
 The optimal number of cells ``2 n C_i / C_c`` (see :mod:`.build_uniform`)
-depends on how fast this machine tests a primitive relative to one DDA step.
-:func:`calibrate` times both with the real kernels:
-
-* ``C_i``: brute force over 256 random primitives of the kind, seconds per test;
-* ``C_c``: rays crossing an almost empty 64^3 grid from face to face, seconds
-  per cell visited (the counters give the number of cells).
-
-Each figure is the median of five runs. Results are cached as JSON in
+depends on how fast this machine tests a primitive relative to one DDA step,
+inside a real traversal: timed apart (tests in a tight brute-force loop, steps
+through an empty grid) both come out several times too cheap, and unevenly so.
+:func:`calibrate` therefore measures them in place: a scene of 20,000 random
+primitives of the kind is traced by 16,384 rays through grids of 1/2, 2, 8 and
+32 cells per primitive; the counters give the cells visited and the tests run
+in each, and a least-squares fit of the traced seconds against
+``cells * C_c + tests * C_i + rays * C_ray`` yields both costs (``C_ray`` takes
+up the per-ray set-up). Each time is the median of three runs. Results are cached as JSON in
 ``$XDG_CACHE_HOME/rayaccel/calibration.json`` (``~/.cache`` by default),
 keyed by machine and Numba version; ``rayaccel calibrate`` re-measures.
 """
@@ -37,7 +38,7 @@ def cache_path() -> Path:
 
 
 def _machine_key() -> str:
-    return f"{platform.node()}|{platform.machine()}|{platform.processor()}|numba {numba.__version__}"
+    return f"in-place fit|{platform.node()}|{platform.machine()}|{platform.processor()}|numba {numba.__version__}"
 
 
 def _sample_scene(kind: int, n: int, rng) -> TriangleMesh | Spheres:
@@ -57,27 +58,24 @@ def _box_crossing_rays(n: int, rng):
 
 
 def calibrate(kind: int) -> dict:
-    """Measure ``C_i`` and ``C_c`` in seconds for primitives of ``kind``."""
+    """Measure ``C_i`` and ``C_c`` in seconds for primitives of ``kind`` (see the module docstring)."""
     from ..registry import build
 
     rng = np.random.default_rng(0)
-    scene = _sample_scene(kind, 256, rng)
-    origins, directions = _box_crossing_rays(4096, rng)
-    brute = build(scene, "none")
-    seconds = median_seconds(lambda: brute.intersect(origins, directions))
-    intersection = seconds / (len(origins) * len(scene))
-
-    corner = _sample_scene(kind, 1, rng)
-    grid = build(corner, "grid", resolution=64)
-    lo, hi = grid.grid.lo, grid.grid.hi
-    origins = lo + (hi - lo) * np.column_stack([np.full(4096, -0.5), rng.uniform(0, 1, (4096, 2))])
-    targets = lo + (hi - lo) * np.column_stack([np.full(4096, 1.5), rng.uniform(0, 1, (4096, 2))])
-    directions = targets - origins
-    cells = grid.intersect(origins, directions, counters=True).counters.nodes.sum()
-    seconds = median_seconds(lambda: grid.intersect(origins, directions))
-    cell_step = seconds / cells
-    return {"intersection_seconds": intersection, "cell_step_seconds": cell_step,
-            "ratio": intersection / cell_step}
+    scene = _sample_scene(kind, 20_000, rng)
+    origins, directions = _box_crossing_rays(16_384, rng)
+    rows, seconds = [], []
+    for density in (0.5, 2.0, 8.0, 32.0):
+        grid = build(scene, "grid", density=density)
+        counters = grid.intersect(origins, directions, counters=True).counters
+        rows.append([counters.nodes.sum(), counters.tests.sum(), len(origins)])
+        seconds.append(median_seconds(lambda: grid.intersect(origins, directions), repeats=3))
+    (cell_step, intersection, per_ray), *_ = np.linalg.lstsq(np.array(rows, float), np.array(seconds), rcond=None)
+    if cell_step <= 0 or intersection <= 0:
+        raise RuntimeError(f"grid cost calibration failed (C_c = {cell_step:.3g}, C_i = {intersection:.3g} s); "
+                           "the machine may be too busy to time it: run `rayaccel calibrate` again")
+    return {"intersection_seconds": float(intersection), "cell_step_seconds": float(cell_step),
+            "ray_setup_seconds": float(per_ray), "ratio": float(intersection / cell_step)}
 
 
 def cost_ratio(kind: int, refresh: bool = False) -> float:
