@@ -16,10 +16,11 @@ side by side, so a node stores one index for both:
   leaf's primitives lie next to each other in memory.
 
 For traversal the nodes are also packed into one record of 32 bytes each,
-``node_records`` (n_nodes, 8) float32: the box rounded outwards to float32 and
-``first``, ``count`` stored bit for bit as int32 in the last two columns (read
-them through ``node_records.view(np.int32)``). The two children of a node then
-share one 64-byte cache line.
+``node_records`` (n_nodes + 1, 8) float32: the box rounded outwards to float32
+and ``first``, ``count`` stored bit for bit as int32 in the last two columns
+(read them through ``node_records.view(np.int32)``). Record 1 is padding and
+node k >= 1 is record k + 1 (child links shifted to match), so that the two
+children of a node share one 64-byte cache line; see :func:`pack_nodes`.
 
 Bounding volumes other than boxes (spheres, k-DOPs) are stored per node in an
 extra array ``node_volume`` beside the boxes; see :mod:`.volumes`.
@@ -57,14 +58,34 @@ class BvhArrays(NamedTuple):
         return int(sum(a.nbytes for a in self))
 
 
+def _aligned_empty(shape, dtype, alignment: int = 64) -> np.ndarray:
+    """An empty C-contiguous array whose first element lies on an ``alignment``-byte boundary."""
+    dtype = np.dtype(dtype)
+    size = int(np.prod(shape)) * dtype.itemsize
+    raw = np.empty(size + alignment, dtype=np.uint8)
+    offset = (-raw.ctypes.data) % alignment
+    return raw[offset:offset + size].view(dtype).reshape(shape)
+
+
 def pack_nodes(node_box: np.ndarray, node_first: np.ndarray, node_count: np.ndarray) -> np.ndarray:
-    """The (n_nodes, 8) float32 records of the traversal: box rounded outwards, then first and count."""
-    records = np.empty((len(node_first), 8), dtype=np.float32)
+    """The traversal's float32 records, (n_nodes + 1, 8): box rounded outwards, then first and count.
+
+    Record 1 is padding, so node k >= 1 is record k + 1 and every sibling pair
+    starts at an even record: with the array on a 64-byte boundary, the two
+    32-byte children of a node share one cache line. Child links are shifted
+    to match; leaf offsets into ``prim_order`` are not.
+    """
+    n = len(node_first)
+    records = _aligned_empty((n + 1, 8), np.float32)
     lo = node_box[:, :3].astype(np.float32)
     hi = node_box[:, 3:].astype(np.float32)
-    records[:, :3] = np.where(lo > node_box[:, :3], np.nextafter(lo, np.float32(-np.inf)), lo)
-    records[:, 3:6] = np.where(hi < node_box[:, 3:], np.nextafter(hi, np.float32(np.inf)), hi)
+    slot = np.concatenate([[0], np.arange(2, n + 1)])
+    records[slot, :3] = np.where(lo > node_box[:, :3], np.nextafter(lo, np.float32(-np.inf)), lo)
+    records[slot, 3:6] = np.where(hi < node_box[:, 3:], np.nextafter(hi, np.float32(np.inf)), hi)
+    records[1] = 0.0
     links = records.view(np.int32)
-    links[:, 6] = node_first
-    links[:, 7] = node_count
+    inner = node_count == 0
+    links[slot, 6] = np.where(inner, node_first + 1, node_first)
+    links[slot, 7] = node_count
+    links[1, 6:] = 0
     return records
