@@ -95,6 +95,8 @@ class BoundingVolumeHierarchy(Accelerator):
             self.volume = fit_spheres(scene.kind, self.geometry, first, count, sphere_fit == "children")
         else:
             self.volume = np.zeros((0, 1))
+        # the traversal indexes volumes like node_records: a padding row at 1
+        self._volume_records = np.insert(self.volume, 1, 0.0, axis=0) if len(self.volume) else self.volume
         self.depth = node_depths(first, count)
         self.build_seconds = time.perf_counter() - start
 
@@ -107,8 +109,8 @@ class BoundingVolumeHierarchy(Accelerator):
         depth = int(self.depth.max()) + 2
         stack_node = np.empty((rows, depth), dtype=np.int32)
         stack_t = np.empty((rows, depth))
-        bvh_trace_kernel(self.bounds_kind, b.node_records, self.volume, b.node_records.view(np.int32), b.prim_order,
-                         self.scene.kind, self.geometry, KDOP_NORMALS, batch.origins, batch.directions,
+        bvh_trace_kernel(self.bounds_kind, b.node_records, self._volume_records, b.node_records.view(np.int32),
+                         b.prim_order, self.scene.kind, self.geometry, KDOP_NORMALS, batch.origins, batch.directions,
                          batch.t_min, batch.t_max, any_hit, stack_node, stack_t, t, prim, u, v, work)
 
     def volume_areas(self) -> np.ndarray:
