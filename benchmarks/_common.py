@@ -14,21 +14,30 @@ from rayaccel._timing import median_seconds  # noqa: F401  (re-exported for the 
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def ensure_competitors() -> bool:
-    """Import embreex, installing the ``bench`` extra first if it is missing."""
+COMPETITORS = {
+    "embreex": "Embree 4 through embreex",
+    "open3d": "Open3D RaycastingScene (Embree inside); needs Debian's libusb-1.0-0 to import",
+}
+
+
+def _importable(name: str) -> bool:
     try:
-        importlib.import_module("embreex")
+        importlib.import_module(name)
         return True
     except ImportError:
+        return False
+
+
+def ensure_competitors() -> set[str]:
+    """The competitor modules that import, after installing the ``bench`` extra if any is missing."""
+    if not all(_importable(name) for name in COMPETITORS):
         print("installing the competitors: pip install -e '.[bench]'", flush=True)
         subprocess.run([sys.executable, "-m", "pip", "install", "-q", "-e", f"{ROOT}[bench]"], check=False)
-    try:
         importlib.invalidate_caches()
-        importlib.import_module("embreex")
-        return True
-    except ImportError:
-        print("embreex is not available here; competitor columns are left out", flush=True)
-        return False
+    available = {name for name in COMPETITORS if _importable(name)}
+    for name in sorted(set(COMPETITORS) - available):
+        print(f"{COMPETITORS[name]} is not available here; its rows are left out", flush=True)
+    return available
 
 
 def primary_rays(scene, side: int):

@@ -1,4 +1,4 @@
-"""rayaccel's structures against Embree (embreex), same rays, same run.
+"""rayaccel's structures against Embree (embreex) and Open3D, same rays, same run.
 
 For each scene and method: build seconds and closest-hit Mrays/s on primary
 (pinhole camera) and incoherent (origins in the scene box, uniform directions)
@@ -52,7 +52,42 @@ class EmbreeScene:
         return np.concatenate(results)
 
 
-def bench_scene(name: str, methods: list[str], side: int, have_embree: bool, console: Console) -> list[dict]:
+class Open3dScene:
+    """Open3D's RaycastingScene (Embree inside); its BVH is built on the first query."""
+
+    def __init__(self, mesh):
+        import open3d as o3d
+
+        self.o3d = o3d
+        start = time.perf_counter()
+        self.scene = o3d.t.geometry.RaycastingScene()
+        self.scene.add_triangles(o3d.core.Tensor(mesh.vertices.astype(np.float32)),
+                                 o3d.core.Tensor(mesh.faces.astype(np.uint32)))
+        self.scene.cast_rays(o3d.core.Tensor(np.array([[0, 0, 0, 1, 1, 1]], np.float32)))
+        self.build_seconds = time.perf_counter() - start
+
+    def query(self, origins, directions, threads: int, kind: str = "INTERSECT"):
+        rays = self.o3d.core.Tensor(np.hstack([origins, directions]).astype(np.float32))
+        if kind == "OCCLUDED":
+            return self.scene.test_occlusions(rays, nthreads=threads).numpy()
+        return self.scene.cast_rays(rays, nthreads=threads)["primitive_ids"].numpy()
+
+
+def _competitor_rows(name, label, make, scene, rays, threads_list) -> list[dict]:
+    rows = []
+    competitor = make(scene)
+    for threads in threads_list:
+        row = {"scene": name, "method": f"{label}, {threads} thread{'s' * (threads > 1)}",
+               "build": median_seconds(lambda: make(scene), repeats=3)}
+        for ray_label, (o, d) in rays.items():
+            row[ray_label] = len(o) / median_seconds(lambda: competitor.query(o, d, threads)) / 1e6
+        o, d = rays["primary"]
+        row["any-hit"] = len(o) / median_seconds(lambda: competitor.query(o, d, threads, "OCCLUDED")) / 1e6
+        rows.append(row)
+    return rows
+
+
+def bench_scene(name: str, methods: list[str], side: int, competitors: set[str], console: Console) -> list[dict]:
     scene = ra.load_scene(name)
     rays = {"primary": primary_rays(scene, side), "incoherent": incoherent_rays(scene, side * side)}
     rows = []
@@ -75,19 +110,13 @@ def bench_scene(name: str, methods: list[str], side: int, have_embree: bool, con
     row["any-hit"] = subset / median_seconds(lambda: brute.occluded(o[:subset], d[:subset]), repeats=1) / 1e6
     rows.append(row)
 
-    if have_embree:
-        embree = EmbreeScene(scene)
-        agreement = np.mean(embree.query(*rays["primary"], 1) == reference_hits)
+    if "embreex" in competitors:
+        agreement = np.mean(EmbreeScene(scene).query(*rays["primary"], 1) == reference_hits)
         console.print(f"{name}: Embree and rayaccel report the same primitive for {agreement:.2%} of primary rays "
                       "(float32 vs float64)")
-        for threads in (1, 2):
-            row = {"scene": name, "method": f"Embree (embreex), {threads} thread{'s' * (threads > 1)}",
-                   "build": median_seconds(lambda: EmbreeScene(scene), repeats=3)}
-            for label, (o, d) in rays.items():
-                row[label] = len(o) / median_seconds(lambda: embree.query(o, d, threads)) / 1e6
-            o, d = rays["primary"]
-            row["any-hit"] = len(o) / median_seconds(lambda: embree.query(o, d, threads, "OCCLUDED")) / 1e6
-            rows.append(row)
+        rows += _competitor_rows(name, "Embree (embreex)", EmbreeScene, scene, rays, (1, 2))
+    if "open3d" in competitors:
+        rows += _competitor_rows(name, "Open3D RaycastingScene", Open3dScene, scene, rays, (2,))
     return rows
 
 
@@ -98,18 +127,19 @@ def main() -> None:
     parser.add_argument("--side", type=int, default=1024, help="primary rays are side x side; as many incoherent")
     args = parser.parse_args()
     console = Console(width=200)
-    have_embree = ensure_competitors()
+    competitors = ensure_competitors()
     rows = []
     for name in args.scenes:
         with console.status(f"benchmarking {name}"):
-            rows += bench_scene(name, args.methods, args.side, have_embree, console)
+            rows += bench_scene(name, args.methods, args.side, competitors, console)
     table = Table(title=f"closest hit, Mrays/s ({args.side}x{args.side} primary, as many incoherent); "
                         "ratio = method / Embree 2 threads")
     for column in ("scene", "method", "build s", "primary", "incoherent", "any-hit primary", "ratio primary",
                    "ratio incoherent", "ratio any-hit"):
         table.add_column(column, justify="left" if column in ("scene", "method") else "right")
     for row in rows:
-        reference = next((r for r in rows if r["scene"] == row["scene"] and r["method"].endswith("2 threads")), None)
+        reference = next((r for r in rows if r["scene"] == row["scene"] and r["method"] == "Embree (embreex), 2 threads"),
+                         None)
         ratios = [f"{row[k] / reference[k]:.3f}" if reference else "-" for k in ("primary", "incoherent", "any-hit")]
         table.add_row(row["scene"], row["method"], f"{row['build']:.3f}", f"{row['primary']:.3g}",
                       f"{row['incoherent']:.3g}", f"{row['any-hit']:.3g}", *ratios)
