@@ -9,7 +9,7 @@ acceleration structure's.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -34,10 +34,8 @@ class RenderResult:
     tests: np.ndarray            # (height, width) primitive tests of the primary ray
     primary_seconds: float = 0.0
     shadow_seconds: float = 0.0
-    shading_seconds: float = 0.0
     primary_rays: int = 0
     shadow_rays: int = 0
-    extra: dict = field(default_factory=dict)
 
     @property
     def trace_seconds(self) -> float:
@@ -122,7 +120,6 @@ def render(accel, camera: Camera | None = None, width: int = 512, height: int = 
         result.primary_rays += len(pixels)
         nodes[pixels] = hits.counters.nodes
         tests[pixels] = hits.counters.tests
-        start = time.perf_counter()
         sky = (pixels // width / max(height - 1, 1))[:, None]
         image[pixels] = (1 - sky) * _BACKGROUND_TOP + sky * _BACKGROUND_BOTTOM
         h = hits.hit
@@ -140,17 +137,15 @@ def render(accel, camera: Camera | None = None, width: int = 512, height: int = 
                 lambert = np.clip(np.einsum("ij,ij->i", normal, to_light) / np.linalg.norm(to_light, axis=1), 0, None)
                 lit = lambert > 0
                 if shadows and lit.any():
-                    shade_start = time.perf_counter()
+                    start = time.perf_counter()
                     blocked = accel.occluded(shifted[lit], to_light[lit], 0.0, 1.0)
-                    result.shadow_seconds += time.perf_counter() - shade_start
+                    result.shadow_seconds += time.perf_counter() - start
                     result.shadow_rays += int(lit.sum())
                     lambert[np.flatnonzero(lit)[blocked]] = 0.0
                 color = color + albedo * lambert[:, None] * (0.92 / len(lights))
             image[pixels[h]] = color
-        result.shading_seconds += time.perf_counter() - start
         if progress is not None:
             progress(min(row + _BAND_ROWS, height), height)
-    result.shading_seconds -= result.shadow_seconds
     result.image = image.reshape(height, width, 3)
     result.nodes = nodes.reshape(height, width)
     result.tests = tests.reshape(height, width)

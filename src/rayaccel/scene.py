@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from ._validate import as_index_triples, as_points, as_positive_int
+from .geometry.bounds import triangle_bounds
 
 __all__ = [
     "TRIANGLE",
@@ -81,8 +82,6 @@ class TriangleMesh:
         return f"TriangleMesh({len(self.vertices)} vertices, {len(self.faces)} triangles)"
 
     def bounds(self) -> PrimitiveBounds:
-        from .geometry.bounds import triangle_bounds
-
         return PrimitiveBounds(*triangle_bounds(self.geometry))
 
     def face_normals(self) -> np.ndarray:

@@ -28,7 +28,7 @@ from .._timing import median_seconds
 from ..geometry.kdop import KDOP_NORMALS
 from ..render import default_camera
 from ..scene import load_scene
-from ..structures.bvh.traverse import _enter, _project
+from ..structures.bvh.traverse import KDOP, _enter, volume_ray_setup
 from ..structures.registry import build
 from ._report import markdown_table, new_figure, save_figure
 from .bvh_builders import incoherent_rays
@@ -50,12 +50,7 @@ def _test_all_volumes(bounds_kind, box, volume, origins, directions, n_nodes):
         ox, oy, oz = origins[i, 0], origins[i, 1], origins[i, 2]
         dx, dy, dz = directions[i, 0], directions[i, 1], directions[i, 2]
         ray = (ox, oy, oz, dx, dy, dz)
-        proj_o = (ox, oy, oz, _project(ox, oy, oz, KDOP_NORMALS, 3), _project(ox, oy, oz, KDOP_NORMALS, 4),
-                  _project(ox, oy, oz, KDOP_NORMALS, 5), _project(ox, oy, oz, KDOP_NORMALS, 6))
-        proj_inv = (1.0 / dx, 1.0 / dy, 1.0 / dz, 1.0 / _project(dx, dy, dz, KDOP_NORMALS, 3),
-                    1.0 / _project(dx, dy, dz, KDOP_NORMALS, 4), 1.0 / _project(dx, dy, dz, KDOP_NORMALS, 5),
-                    1.0 / _project(dx, dy, dz, KDOP_NORMALS, 6))
-        near = (0 if dx >= 0.0 else 3, 1 if dy >= 0.0 else 4, 2 if dz >= 0.0 else 5)
+        proj_o, proj_inv, near = volume_ray_setup(ox, oy, oz, dx, dy, dz, KDOP_NORMALS, bounds_kind == KDOP)
         count = 0
         for node in range(n_nodes):
             if _enter(bounds_kind, box, volume, node, ray, proj_o, proj_inv, near, 0.0, np.inf) != np.inf:

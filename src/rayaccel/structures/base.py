@@ -111,7 +111,7 @@ class Accelerator:
         result = {"method": self.method, "primitives": len(self.scene), "build_seconds": self.build_seconds}
         result.update(self._structure_stats())
         if origins is None:
-            lo, hi = self.scene.bounds().scene_lo, self.scene.bounds().scene_hi
-            origins, directions = Camera.framing(lo, hi).rays(128, 128)
+            bounds = self.scene.bounds()
+            origins, directions = Camera.framing(bounds.scene_lo, bounds.scene_hi).rays(128, 128)
         result.update(measured_stats(self, origins, directions))
         return result

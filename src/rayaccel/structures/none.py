@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import time
-
 from numba import prange
 
 from .._jit import parallel_kernel
@@ -46,8 +44,6 @@ class BruteForce(Accelerator):
 
     def __init__(self, scene):
         super().__init__(scene, {})
-        start = time.perf_counter()
-        self.build_seconds = time.perf_counter() - start
 
     def _trace(self, batch, any_hit, t, prim, u, v, work):
         brute_force_kernel(self.scene.kind, self.scene.geometry, batch.origins, batch.directions,

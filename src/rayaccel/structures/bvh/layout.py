@@ -20,7 +20,8 @@ For traversal the nodes are also packed into one record of 32 bytes each,
 and ``first``, ``count`` stored bit for bit as int32 in the last two columns
 (read them through ``node_records.view(np.int32)``). Record 1 is padding and
 node k >= 1 is record k + 1 (child links shifted to match), so that the two
-children of a node share one 64-byte cache line; see :func:`pack_nodes`.
+children of a node share one 64-byte cache line; see :func:`node_rows`, which
+lays out the sphere and k-DOP volumes the same way.
 
 Bounding volumes other than boxes (spheres, k-DOPs) are stored per node in an
 extra array ``node_volume`` beside the boxes; see :mod:`.volumes`.
@@ -37,7 +38,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-__all__ = ["BvhArrays", "pack_nodes"]
+__all__ = ["BvhArrays", "node_rows", "pack_nodes"]
 
 
 class BvhArrays(NamedTuple):
@@ -54,38 +55,35 @@ class BvhArrays(NamedTuple):
         return len(self.node_first)
 
     @property
-    def nbytes(self) -> int:
-        return int(sum(a.nbytes for a in self))
+    def traversal_bytes(self) -> int:
+        """Memory the traversal reads besides geometry: node records and primitive order."""
+        return int(self.node_records.nbytes + self.prim_order.nbytes)
 
 
-def _aligned_empty(shape, dtype, alignment: int = 64) -> np.ndarray:
-    """An empty C-contiguous array whose first element lies on an ``alignment``-byte boundary."""
-    dtype = np.dtype(dtype)
-    size = int(np.prod(shape)) * dtype.itemsize
-    raw = np.empty(size + alignment, dtype=np.uint8)
-    offset = (-raw.ctypes.data) % alignment
-    return raw[offset:offset + size].view(dtype).reshape(shape)
+def node_rows(per_node: np.ndarray) -> np.ndarray:
+    """``per_node`` (n_nodes, m) laid out the way the traversal indexes nodes: row 0 is the
+    root, row 1 padding (zeros), node k >= 1 row k + 1; on a 64-byte boundary, so that
+    with 32-byte rows every sibling pair shares one cache line."""
+    n, m = per_node.shape
+    size = (n + 1) * m * per_node.itemsize
+    raw = np.zeros(size + 64, dtype=np.uint8)
+    offset = (-raw.ctypes.data) % 64
+    rows = raw[offset:offset + size].view(per_node.dtype).reshape(n + 1, m)
+    rows[0] = per_node[0]
+    rows[2:] = per_node[1:]
+    return rows
 
 
 def pack_nodes(node_box: np.ndarray, node_first: np.ndarray, node_count: np.ndarray) -> np.ndarray:
-    """The traversal's float32 records, (n_nodes + 1, 8): box rounded outwards, then first and count.
-
-    Record 1 is padding, so node k >= 1 is record k + 1 and every sibling pair
-    starts at an even record: with the array on a 64-byte boundary, the two
-    32-byte children of a node share one cache line. Child links are shifted
-    to match; leaf offsets into ``prim_order`` are not.
-    """
-    n = len(node_first)
-    records = _aligned_empty((n + 1, 8), np.float32)
+    """The traversal's float32 records, (n_nodes + 1, 8) in :func:`node_rows` order: the box
+    rounded outwards, then first and count, with child links shifted to the record numbering
+    (leaf offsets into ``prim_order`` are not shifted)."""
+    records = np.empty((len(node_first), 8), dtype=np.float32)
     lo = node_box[:, :3].astype(np.float32)
     hi = node_box[:, 3:].astype(np.float32)
-    slot = np.concatenate([[0], np.arange(2, n + 1)])
-    records[slot, :3] = np.where(lo > node_box[:, :3], np.nextafter(lo, np.float32(-np.inf)), lo)
-    records[slot, 3:6] = np.where(hi < node_box[:, 3:], np.nextafter(hi, np.float32(np.inf)), hi)
-    records[1] = 0.0
+    records[:, :3] = np.where(lo > node_box[:, :3], np.nextafter(lo, np.float32(-np.inf)), lo)
+    records[:, 3:6] = np.where(hi < node_box[:, 3:], np.nextafter(hi, np.float32(np.inf)), hi)
     links = records.view(np.int32)
-    inner = node_count == 0
-    links[slot, 6] = np.where(inner, node_first + 1, node_first)
-    links[slot, 7] = node_count
-    links[1, 6:] = 0
-    return records
+    links[:, 6] = np.where(node_count == 0, node_first + 1, node_first)
+    links[:, 7] = node_count
+    return node_rows(records)

@@ -25,7 +25,7 @@ from ...geometry.primitive import intersect_prim, ray_setup
 from ...geometry.sphere import sphere_span
 from ..base import is_closer, store_hit
 
-__all__ = ["BOX", "SPHERE_VOLUME", "KDOP", "KDOP_NORMALS", "bvh_trace_kernel"]
+__all__ = ["BOX", "SPHERE_VOLUME", "KDOP", "KDOP_NORMALS", "volume_ray_setup", "bvh_trace_kernel"]
 
 BOX = 0
 SPHERE_VOLUME = 1
@@ -97,6 +97,23 @@ def _project(x, y, z, normals, j):
     return x * normals[j, 0] + y * normals[j, 1] + z * normals[j, 2]
 
 
+@inline_kernel
+def volume_ray_setup(ox, oy, oz, dx, dy, dz, normals, with_diagonals):
+    """Per-ray constants of the volume tests: origin projections and reciprocal direction
+    projections on the slab normals (only the three axes unless ``with_diagonals``), and the
+    near face of each axis for the box test (3, 4, 5 where the reciprocal is negative, -0 included)."""
+    proj_o = (ox, oy, oz, 0.0, 0.0, 0.0, 0.0)
+    proj_inv = (1.0 / dx, 1.0 / dy, 1.0 / dz, 0.0, 0.0, 0.0, 0.0)
+    if with_diagonals:
+        proj_o = (ox, oy, oz, _project(ox, oy, oz, normals, 3), _project(ox, oy, oz, normals, 4),
+                  _project(ox, oy, oz, normals, 5), _project(ox, oy, oz, normals, 6))
+        proj_inv = (proj_inv[0], proj_inv[1], proj_inv[2], 1.0 / _project(dx, dy, dz, normals, 3),
+                    1.0 / _project(dx, dy, dz, normals, 4), 1.0 / _project(dx, dy, dz, normals, 5),
+                    1.0 / _project(dx, dy, dz, normals, 6))
+    near_faces = (0 if proj_inv[0] >= 0.0 else 3, 1 if proj_inv[1] >= 0.0 else 4, 2 if proj_inv[2] >= 0.0 else 5)
+    return proj_o, proj_inv, near_faces
+
+
 @parallel_kernel
 def bvh_trace_kernel(bounds_kind, node_box, node_volume, node_links, prim_order, kind, geom,
                      normals, origins, directions, t_min, t_max, any_hit, stack_node, stack_t,
@@ -107,21 +124,12 @@ def bvh_trace_kernel(bounds_kind, node_box, node_volume, node_links, prim_order,
     and ``node_links`` the same memory seen as int32 (columns 6 and 7: first, count).
     """
     count_work = work.shape[0] > 0
-    n_normals = 7 if bounds_kind == KDOP else 3
     for i in prange(origins.shape[0]):
         ox, oy, oz = origins[i, 0], origins[i, 1], origins[i, 2]
         dx, dy, dz = directions[i, 0], directions[i, 1], directions[i, 2]
         ray = ray_setup(ox, oy, oz, dx, dy, dz)
         tid = thread_id()  # stacks are indexed in place: a row view would touch a shared refcount per ray
-        proj_o = (ox, oy, oz, 0.0, 0.0, 0.0, 0.0)
-        proj_inv = (1.0 / dx, 1.0 / dy, 1.0 / dz, 0.0, 0.0, 0.0, 0.0)
-        if n_normals == 7:
-            proj_o = (ox, oy, oz, _project(ox, oy, oz, normals, 3), _project(ox, oy, oz, normals, 4),
-                      _project(ox, oy, oz, normals, 5), _project(ox, oy, oz, normals, 6))
-            proj_inv = (proj_inv[0], proj_inv[1], proj_inv[2], 1.0 / _project(dx, dy, dz, normals, 3),
-                        1.0 / _project(dx, dy, dz, normals, 4), 1.0 / _project(dx, dy, dz, normals, 5),
-                        1.0 / _project(dx, dy, dz, normals, 6))
-        near_faces = (0 if proj_inv[0] >= 0.0 else 3, 1 if proj_inv[1] >= 0.0 else 4, 2 if proj_inv[2] >= 0.0 else 5)
+        proj_o, proj_inv, near_faces = volume_ray_setup(ox, oy, oz, dx, dy, dz, normals, bounds_kind == KDOP)
         ray_t_min = t_min[i]
         best_t = t_max[i]
         best_prim = -1

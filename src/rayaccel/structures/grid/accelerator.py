@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import threading
 import time
 
@@ -77,39 +78,36 @@ class UniformGrid(Accelerator):
             raise ValueError(f"resolution {tuple(res)} has more than 2**27 cells")
         return res.astype(np.int64)
 
-    def _take_mailbox(self, n_rays: int):
-        """A mailbox no other call is using, and a fresh range of ray ids to stamp it with."""
+    @contextlib.contextmanager
+    def _mailbox_for(self, n_rays: int):
+        """Yield a mailbox no other call is using (empty when mailboxing is off) and a fresh
+        range of ray ids to stamp it with; the mailbox returns to the pool afterwards."""
+        if not self.mailbox:
+            yield np.zeros((0, 0), dtype=np.int64), 0
+            return
         with self._mailbox_lock:
             mailbox = self._free_mailboxes.pop() if self._free_mailboxes else None
             base = self._next_ray_id
             self._next_ray_id += n_rays
         if mailbox is None:
             mailbox = np.full((numba.config.NUMBA_NUM_THREADS, len(self.scene)), -1, dtype=np.int64)
-        return mailbox, base
-
-    def _trace(self, batch, any_hit, t, prim, u, v, work):
-        g = self.grid
-        if not self.mailbox:
-            grid_trace_kernel(g.lo, g.hi, g.res, g.cell_size, g.cell_first, g.cell_prims,
-                              self.scene.kind, self.scene.geometry, batch.origins, batch.directions,
-                              batch.t_min, batch.t_max, any_hit, np.zeros((0, 0), dtype=np.int64), 0,
-                              t, prim, u, v, work)
-            return
-        mailbox, base = self._take_mailbox(len(batch.origins))
         try:
-            grid_trace_kernel(g.lo, g.hi, g.res, g.cell_size, g.cell_first, g.cell_prims,
-                              self.scene.kind, self.scene.geometry, batch.origins, batch.directions,
-                              batch.t_min, batch.t_max, any_hit, mailbox, base, t, prim, u, v, work)
+            yield mailbox, base
         finally:
             with self._mailbox_lock:
                 self._free_mailboxes.append(mailbox)
+
+    def _trace(self, batch, any_hit, t, prim, u, v, work):
+        g = self.grid
+        with self._mailbox_for(len(batch.origins)) as (mailbox, base):
+            grid_trace_kernel(g.lo, g.hi, g.res, g.cell_size, g.cell_first, g.cell_prims,
+                              self.scene.kind, self.scene.geometry, batch.origins, batch.directions,
+                              batch.t_min, batch.t_max, any_hit, mailbox, base, t, prim, u, v, work)
 
     def _structure_stats(self) -> dict:
         g = self.grid
         counts = np.diff(g.cell_first)
         nonempty = int(np.count_nonzero(counts))
-        cell_area = 2.0 * (g.cell_size[0] * g.cell_size[1] + g.cell_size[1] * g.cell_size[2]
-                           + g.cell_size[0] * g.cell_size[2])
         n_cells = g.n_cells
         result = {
             "resolution": tuple(int(r) for r in g.res),
@@ -121,7 +119,7 @@ class UniformGrid(Accelerator):
             "avg_prims_per_nonempty_leaf": float(g.cell_first[-1]) / max(nonempty, 1),
             "bytes": g.nbytes,
         }
-        cell_areas = np.full(n_cells, cell_area)
+        cell_areas = np.full(n_cells, box_area(np.zeros(3), g.cell_size))
         # Every cell entered is one DDA step, so cells count as traversal steps too.
         result.update(surface_area_stats(box_area(g.lo, g.hi), step_areas=cell_areas,
                                          leaf_areas=cell_areas, leaf_counts=counts))

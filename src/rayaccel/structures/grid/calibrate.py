@@ -2,8 +2,8 @@
 
 The optimal number of cells ``2 n C_i / C_c`` (see :mod:`.build_uniform`)
 depends on how fast this machine tests a primitive relative to one DDA step,
-inside a real traversal: timed apart (tests in a tight brute-force loop, steps
-through an empty grid) both come out several times too cheap, and unevenly so.
+inside a real traversal; timed apart (tests in a tight brute-force loop, steps
+through an empty grid) they are measured outside the work they model.
 :func:`calibrate` therefore measures them in place: a scene of 20,000 random
 primitives of the kind is traced by 16,384 rays through grids of 1/2, 2, 8 and
 32 cells per primitive; the counters give the cells visited and the tests run
