@@ -8,7 +8,10 @@ from .._jit import inline_kernel
 from ..rays import Camera, Hits, RayCounters, prepare_rays
 from ..scene import SPHERE, Spheres, TriangleMesh
 
-__all__ = ["Accelerator", "is_closer", "store_hit"]
+__all__ = ["Accelerator", "is_closer", "store_hit", "settled_before", "EXIT_MARGIN"]
+
+# Relative margin by which a hit must lie before a cell's exit for the walk to stop there.
+EXIT_MARGIN = 1e-9
 
 
 @inline_kernel
@@ -19,6 +22,15 @@ def is_closer(t, prim, best_t, best_prim):
     if t == np.inf:
         return False
     return best_prim < 0 or t < best_t or (t == best_t and prim < best_prim)
+
+
+@inline_kernel
+def settled_before(best_prim, best_t, t_exit):
+    """Whether the best hit so far lies before a cell's exit distance, so no later cell can
+    hold a closer one. The margin covers the rounding of plane distances: a hit on the
+    plane itself (a shared edge lying in a split plane) lets the walk enter the next
+    cell too, where a primitive hit at the same ``t`` with a lower index may wait."""
+    return best_prim >= 0 and best_t < t_exit - EXIT_MARGIN * abs(t_exit)
 
 
 @inline_kernel

@@ -5,6 +5,7 @@ from __future__ import annotations
 from ..scene import Spheres, TriangleMesh
 from .bvh.accelerator import BVH_CLASSES
 from .grid.accelerator import UniformGrid
+from .kdtree.accelerator import KdTree
 from .none import BruteForce
 
 __all__ = ["build", "build_class", "methods"]
@@ -13,6 +14,7 @@ _METHODS = {
     "none": BruteForce,
     "grid": UniformGrid,
     **{cls.method: cls for cls in BVH_CLASSES},
+    "kdtree": KdTree,
 }
 
 

@@ -1,0 +1,149 @@
+"""``kdtree``: the SAH kd-tree as an :class:`~rayaccel.structures.base.Accelerator`."""
+
+from __future__ import annotations
+
+import math
+import time
+from concurrent.futures import ThreadPoolExecutor
+
+import numba
+import numpy as np
+
+from ..._jit import thread_count
+from ...stats import box_area, surface_area_stats
+from ..base import Accelerator
+from ..grid.build_uniform import grid_box
+from .build_sah_events import build_subtree, root_events
+from .layout import LEAF, KdTreeArrays, node_cells
+from .traverse import kdtree_trace_kernel
+
+__all__ = ["KdTree", "check_number"]
+
+_MAX_PRIMS = 1 << 28  # leaf counts are stored as count << 2 in an int32
+
+
+def check_number(name, value, *, integer=False, minimum=0.0, inclusive=False, maximum=None):
+    """``value`` as a float (or int), or a TypeError/ValueError naming the option."""
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise TypeError(f"{name} must be a number, got {type(value).__name__}")
+    if integer and int(value) != value:
+        raise TypeError(f"{name} must be an integer, got {value!r}")
+    ok = np.isfinite(value) and (value >= minimum if inclusive else value > minimum)
+    if maximum is not None:
+        ok = ok and value <= maximum
+    if not ok:
+        bound = f"at least {minimum}" if inclusive else f"greater than {minimum}"
+        raise ValueError(f"{name} must be {bound}{'' if maximum is None else f' and at most {maximum}'}, got {value!r}")
+    return int(value) if integer else float(value)
+
+
+class KdTree(Accelerator):
+    """``kdtree``: SAH kd-tree with perfect splits, built in O(N log N) (Wald & Havran 2006).
+
+    Parameters
+    ----------
+    traversal_cost, intersection_cost : float, default 1 and 1.5
+        ``C_t`` and ``C_i`` of the cost model ``C_t + C_i (S_L N_L + S_R N_R) / S``.
+        A larger ``C_i / C_t`` splits deeper: fewer tests per ray, more nodes.
+    empty_bonus : float in [0, 1), default 0.2
+        Discount on the cost of a split with one empty side (Wald & Havran's
+        lambda = 0.8); larger values cut off more empty space.
+    leaf_size : int, default 1
+        Nodes with at most this many primitives become leaves without trying
+        a split; the SAH makes larger leaves where splitting does not pay.
+    max_depth : int, optional
+        Depth limit; default ``round(8 + 1.3 log2 n)`` (pbrt's rule).
+    threads : int, optional
+        Subtrees are built on this many threads (default: the parallel
+        kernels' thread count).
+    """
+
+    method = "kdtree"
+
+    def __init__(self, scene, *, traversal_cost=1.0, intersection_cost=1.33, empty_bonus=0.2, leaf_size=1,
+                 max_depth=None, threads=None):
+        n = len(scene)
+        if n > _MAX_PRIMS:
+            raise ValueError(f"the kd-tree holds at most {_MAX_PRIMS:,} primitives, got {n:,}")
+        if max_depth is None:
+            max_depth = int(round(8 + 1.3 * math.log2(max(n, 1))))
+        options = {
+            "traversal_cost": check_number("traversal_cost", traversal_cost),
+            "intersection_cost": check_number("intersection_cost", intersection_cost),
+            "empty_bonus": check_number("empty_bonus", empty_bonus, inclusive=True, maximum=0.99),
+            "leaf_size": check_number("leaf_size", leaf_size, integer=True, minimum=1, inclusive=True),
+            "max_depth": check_number("max_depth", max_depth, integer=True, inclusive=True, maximum=200),
+        }
+        threads = thread_count() if threads is None else check_number("threads", threads, integer=True, minimum=1,
+                                                                       inclusive=True)
+        super().__init__(scene, options)
+        start = time.perf_counter()
+        self.kd = self._build(scene, threads, **options)
+        self.build_seconds = time.perf_counter() - start
+        self._cells, depth = node_cells(self.kd.lo, self.kd.hi, self.kd.node_split, self.kd.node_link)
+        self.max_depth = int(depth.max())
+
+    def _build(self, scene, threads, traversal_cost, intersection_cost, empty_bonus, leaf_size, max_depth):
+        bounds = scene.bounds()
+        lo, hi = grid_box(bounds.scene_lo, bounds.scene_hi)
+        root_cell = np.concatenate((lo, hi))
+        slack = 1e-11 * float(np.abs(root_cell).max() + (hi - lo).max())
+        n = len(scene)
+        params = (scene.kind, scene.geometry, n, traversal_cost, intersection_cost, empty_bonus, leaf_size,
+                  max_depth, slack)
+        with ThreadPoolExecutor(max(threads, 1)) as pool:
+            pos, code, span = root_events(bounds.lo, bounds.hi, pool if threads > 1 else None)
+            defer_below = max(n // (4 * threads), 4096) if threads > 1 and n >= 8192 else 0
+            node_split, node_link, leaf_prims, _, deferred = build_subtree(pos, code, span, n, root_cell, 0,
+                                                                           *params, defer_below)
+            del pos, code
+            tasks = sorted(deferred, key=lambda task: -task[4])
+            subtrees = pool.map(lambda task: build_subtree(*task[1:], *params, 0), tasks)
+            splits, links, leaves = [node_split], [node_link], [leaf_prims]
+            n_nodes, n_refs = len(node_split), len(leaf_prims)
+            for task, (sub_split, sub_link, sub_leaves, _, _) in zip(tasks, subtrees):
+                # the subtree's root replaces its placeholder; its other nodes follow the nodes so far
+                leaf = (sub_link[:, 1] & 3) == LEAF
+                sub_link[~leaf, 0] += n_nodes - 1
+                sub_link[leaf, 0] += n_refs
+                node_split[task[0]] = sub_split[0]
+                node_link[task[0]] = sub_link[0]
+                splits.append(sub_split[1:])
+                links.append(sub_link[1:])
+                leaves.append(sub_leaves)
+                n_nodes += len(sub_split) - 1
+                n_refs += len(sub_leaves)
+        if n_nodes >= np.iinfo(np.int32).max or n_refs >= np.iinfo(np.int32).max:
+            raise ValueError("the kd-tree outgrew int32 indices; raise leaf_size or lower max_depth")
+        return KdTreeArrays(lo, hi, np.concatenate(splits), np.concatenate(links), np.concatenate(leaves))
+
+    def _trace(self, batch, any_hit, t, prim, u, v, work):
+        k = self.kd
+        rows = numba.config.NUMBA_NUM_THREADS
+        stack_node = np.empty((rows, self.max_depth + 2), dtype=np.int32)
+        stack_t = np.empty((rows, self.max_depth + 2, 2))
+        kdtree_trace_kernel(k.lo, k.hi, k.node_split, k.node_link, k.leaf_prims, self.scene.kind, self.scene.geometry,
+                            batch.origins, batch.directions, batch.t_min, batch.t_max, any_hit, stack_node, stack_t,
+                            t, prim, u, v, work)
+
+    def _structure_stats(self) -> dict:
+        k = self.kd
+        leaf = k.axis == LEAF
+        counts = k.count[leaf]
+        areas = box_area(self._cells[:, :3], self._cells[:, 3:])
+        nonempty = int(np.count_nonzero(counts))
+        result = {
+            "nodes": k.n_nodes,
+            "leaves": int(leaf.sum()),
+            "nonempty_leaves": nonempty,
+            "max_depth": self.max_depth,
+            "references": len(k.leaf_prims),
+            "avg_prims_per_nonempty_leaf": float(counts.sum()) / max(nonempty, 1),
+            "bytes": k.nbytes + self.scene.geometry.nbytes,
+        }
+        sa = surface_area_stats(areas[0], step_areas=areas[~leaf], leaf_areas=areas[leaf], leaf_counts=counts,
+                                traversal_cost=self.options["traversal_cost"],
+                                intersection_cost=self.options["intersection_cost"])
+        result.update(sa)
+        result["sah_cost"] = sa["expected_cost"]
+        return result

@@ -1,0 +1,421 @@
+"""SAH kd-tree construction in O(N log N) with sorted event lists.
+
+Wald & Havran, "On building fast kd-Trees for Ray Tracing, and on doing that
+in O(N log N)", IEEE Symposium on Interactive Ray Tracing 2006.
+
+Every primitive contributes, on each axis, a *start* and an *end* event at the
+two faces of its box, or one *planar* event where the box is flat. The events
+are sorted once, by position and then type (end < planar < start), and stay
+sorted: a node sweeps them to find its best plane, then hands them to its
+children by filtering, so no node ever sorts more than the few events of the
+primitives that the plane cuts. Events live in one arena used like a stack (see
+:func:`build_subtree`): no memory is allocated per node.
+
+* **Sweep** (per axis): crossing the events in order keeps the counts left of,
+  on, and right of the candidate plane, which gives the cost of every plane in
+  one pass. Cost (the lecture's, MacDonald & Booth 1990) of splitting a cell of
+  area ``S`` at a plane with ``N_L``/``N_R`` primitives on the two sides of
+  areas ``S_L``/``S_R``::
+
+      C_t + lambda * C_i * (S_L N_L + S_R N_R) / S
+
+  with ``lambda = 1 - empty_bonus`` when one side is empty (cutting off empty
+  space pays twice: those rays leave early), else 1. Primitives lying in the
+  plane are tried on each side in turn.
+* **Termination**: a leaf when ``C_i N`` (not splitting) is no dearer than the
+  best split, when ``N <= leaf_size``, or at ``max_depth``.
+* **Perfect splits**: a primitive straddling the plane is clipped to each
+  child's cell (:mod:`rayaccel.geometry.clip`) and its new, tighter events are
+  sorted and merged into the child's lists; a primitive whose clipped part is
+  empty on one side (its box straddles the plane, the primitive does not)
+  leaves that side altogether.
+
+Builders see geometry here, unlike the BVH's, because clipping needs it.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba.typed import List
+
+from ..._jit import kernel
+from ...geometry.clip import CLIP_VERTICES, clipped_bounds
+from .layout import LEAF
+
+__all__ = ["END", "PLANAR", "START", "root_events", "build_subtree", "order_ties"]
+
+END = 0
+PLANAR = 1
+START = 2
+
+_NOT_A_PLANE = 1e300  # cost added to events that are not candidate planes
+
+_BOTH = 0
+_LEFT = 1
+_RIGHT = 2
+
+
+@kernel
+def order_ties(pos, code, scratch):
+    """Reorder runs of equal positions by event type (end, planar, start) in linear time;
+    ``pos`` must already be sorted. ``scratch`` is an int64 array at least as long."""
+    n = pos.shape[0]
+    i = 0
+    while i < n:
+        j = i + 1
+        while j < n and pos[j] == pos[i]:
+            j += 1
+        if j - i > 1:
+            m = 0
+            for kind in (END, PLANAR, START):
+                for k in range(i, j):
+                    if code[k] & 3 == kind:
+                        scratch[m] = code[k]
+                        m += 1
+            code[i:j] = scratch[:j - i]
+        i = j
+
+
+def root_events(lo: np.ndarray, hi: np.ndarray, executor=None):
+    """The sorted events of all primitives, axis by axis: ``(pos, code, span)`` with
+    ``code = prim << 2 | type`` and axis ``a``'s events at ``span[a, 0]:span[a, 1]``.
+    The three axes sort concurrently when ``executor`` is given."""
+    prims = np.arange(len(lo), dtype=np.int64)
+
+    def one_axis(axis):
+        flat = lo[:, axis] == hi[:, axis]
+        solid = ~flat
+        pos = np.concatenate((hi[solid, axis], lo[flat, axis], lo[solid, axis]))
+        code = np.concatenate((prims[solid] << 2 | END, prims[flat] << 2 | PLANAR, prims[solid] << 2 | START))
+        order = np.argsort(pos)
+        pos, code = pos[order], code[order]
+        order_ties(pos, code, np.empty(len(code), dtype=np.int64))
+        return pos, code
+
+    per_axis = list(executor.map(one_axis, range(3)) if executor else map(one_axis, range(3)))
+    lengths = np.array([len(p) for p, _ in per_axis], dtype=np.int64)
+    span = np.stack((np.cumsum(lengths) - lengths, np.cumsum(lengths)), axis=1)
+    return np.concatenate([p for p, _ in per_axis]), np.concatenate([c for _, c in per_axis]), span
+
+
+@kernel
+def _best_plane(pos, code, first, last, axis, cell, n, traversal_cost, intersection_cost, empty_bonus):
+    """Sweep one axis's events; return (cost, position, planar primitives go left) of its best plane.
+
+    After the events at position ``p`` (ends, then planars, then starts) the
+    counts are ``n_left`` (boxes starting at or before ``p``) and ``n_right``
+    (boxes ending after ``p``); the primitives in the plane are ``planars``, counted
+    in ``n_left``.
+    """
+    lo = cell[axis]
+    hi = cell[axis + 3]
+    e1 = cell[(axis + 1) % 3 + 3] - cell[(axis + 1) % 3]
+    e2 = cell[(axis + 2) % 3 + 3] - cell[(axis + 2) % 3]
+    area = 2.0 * (e1 * e2 + (hi - lo) * (e1 + e2))
+    best_cost = np.inf
+    best_pos = 0.0
+    best_planar_left = True
+    if area <= 0.0 or first == last:
+        return best_cost, best_pos, best_planar_left
+    scale = 2.0 * intersection_cost / area
+    cap = e1 * e2
+    ring = e1 + e2
+    empty_weight = 1.0 - empty_bonus
+    n_left = 0
+    n_right = n
+    group_starts = 0
+    group_planars = 0
+    previous = pos[first]
+    for k in range(first, last):
+        p = pos[k]
+        kind = code[k] & 3
+        same = p == previous
+        group_starts = group_starts * same + (kind == START)
+        group_planars = group_planars * same + (kind == PLANAR)
+        n_left += kind != END
+        n_right -= kind != START
+        previous = p
+        following = pos[k + 1] if k + 1 < last else np.inf
+        area_left = cap + (p - lo) * ring
+        area_right = cap + (hi - p) * ring
+        left = n_left - group_starts
+        weight = 1.0 - empty_bonus * ((left == 0) | (n_right == 0))
+        cost = traversal_cost + weight * scale * (area_left * left + area_right * n_right)
+        # Only the last event at a position strictly inside the cell is a candidate. Positions
+        # repeat at random (shared vertices), so the choice is arithmetic, not branches.
+        candidate = (following != p) & (lo < p) & (p < hi)
+        cost += _NOT_A_PLANE * (1 - candidate)
+        better = cost < best_cost
+        best_cost = min(cost, best_cost)
+        best_pos += (p - best_pos) * better
+        if group_planars > 0 and following != p and lo < p < hi:
+            left -= group_planars
+            right = n_right + group_planars
+            weight = empty_weight if left == 0 or right == 0 else 1.0
+            cost = traversal_cost + weight * scale * (area_left * left + area_right * right)
+            if cost < best_cost:
+                best_cost, best_pos, best_planar_left = cost, p, False
+            elif best_pos == p:
+                best_planar_left = True
+    if best_cost >= _NOT_A_PLANE:
+        best_cost = np.inf
+    return best_cost, best_pos, best_planar_left
+
+
+@kernel
+def _classify(pos, code, first, last, p, planar_left, flags):
+    """Mark each primitive of the node left only, right only, or both (straddling the plane);
+    return how many straddle."""
+    for i in range(first, last):
+        flags[code[i] >> 2] = _BOTH
+    n_straddling = 0
+    for i in range(first, last):
+        kind = code[i] & 3
+        prim = code[i] >> 2
+        x = pos[i]
+        planar = kind == PLANAR
+        left = ((kind == END) & (x <= p)) | (planar & ((x < p) | ((x == p) & planar_left)))
+        right = ((kind == START) & (x >= p)) | (planar & ~left)
+        flags[prim] = _LEFT if left else (_RIGHT if right else flags[prim])
+    for i in range(first, last):
+        n_straddling += (code[i] & 3 == START) & (flags[code[i] >> 2] == _BOTH)
+    return n_straddling
+
+
+@kernel
+def _event_before(pos_a, code_a, pos_b, code_b):
+    return pos_a < pos_b or (pos_a == pos_b and code_a & 3 < code_b & 3)
+
+
+@kernel
+def _sort_events(pos, code, n):
+    """Sort ``pos[:n]``, ``code[:n]`` in place by position, then type."""
+    if n <= 32:
+        for k in range(1, n):
+            p = pos[k]
+            c = code[k]
+            j = k
+            while j > 0 and _event_before(p, c, pos[j - 1], code[j - 1]):
+                pos[j] = pos[j - 1]
+                code[j] = code[j - 1]
+                j -= 1
+            pos[j] = p
+            code[j] = c
+        return
+    order = np.argsort(pos[:n])
+    sorted_pos = pos[:n][order]
+    sorted_code = code[:n][order]
+    pos[:n] = sorted_pos
+    code[:n] = sorted_code
+    order_ties(pos[:n], code[:n], np.empty(n, dtype=np.int64))
+
+
+@kernel
+def _clip_straddling(pos, code, first, last, flags, cell, kind, geom, slack, poly, box, new_pos, new_code, fill):
+    """Events of the straddling primitives (found among the split axis's events
+    ``first:last``) clipped to ``cell``: rows ``new_pos[axis, :fill[axis]]`` (and
+    ``new_code``) per axis, each sorted."""
+    fill[:] = 0
+    for i in range(first, last):
+        if code[i] & 3 != START or flags[code[i] >> 2] != _BOTH:
+            continue
+        prim = code[i] >> 2
+        if not clipped_bounds(kind, geom, prim, cell, slack, poly, box):
+            continue
+        for b in range(3):
+            f = fill[b]
+            if box[b] == box[b + 3]:
+                new_pos[b, f] = box[b]
+                new_code[b, f] = prim << 2 | PLANAR
+                fill[b] = f + 1
+            else:
+                new_pos[b, f] = box[b]
+                new_code[b, f] = prim << 2 | START
+                new_pos[b, f + 1] = box[b + 3]
+                new_code[b, f + 1] = prim << 2 | END
+                fill[b] = f + 2
+    for b in range(3):
+        _sort_events(new_pos[b], new_code[b], fill[b])
+
+
+@kernel
+def _distribute(pos, code, span, flags, new_pos, new_code, fill, child_span):
+    """One pass over the parent's events: each goes to the left child, the right child or
+    (straddling) neither, merged on the way with the clipped events of its side.
+
+    ``child_span[side, axis]`` arrives holding where that child's events of that axis
+    start (room for every parent event of the axis plus the clipped ones) and leaves
+    holding their (first, end). Returns the two children's primitive counts.
+    """
+    n_prims = np.zeros(2, dtype=np.int64)
+    j = np.empty(2, dtype=np.int64)
+    o = np.empty(2, dtype=np.int64)
+    for b in range(3):
+        j[:] = 0
+        o[0] = child_span[0, b, 0]
+        o[1] = child_span[1, b, 0]
+        for i in range(span[b, 0], span[b, 1]):
+            side = flags[code[i] >> 2]
+            if side == _BOTH:
+                continue
+            s = side - 1
+            while j[s] < fill[s, b] and _event_before(new_pos[s, b, j[s]], new_code[s, b, j[s]], pos[i], code[i]):
+                pos[o[s]] = new_pos[s, b, j[s]]
+                code[o[s]] = new_code[s, b, j[s]]
+                o[s] += 1
+                j[s] += 1
+            pos[o[s]] = pos[i]
+            code[o[s]] = code[i]
+            o[s] += 1
+        for s in range(2):
+            while j[s] < fill[s, b]:
+                pos[o[s]] = new_pos[s, b, j[s]]
+                code[o[s]] = new_code[s, b, j[s]]
+                o[s] += 1
+                j[s] += 1
+            child_span[s, b, 1] = o[s]
+            if b == 0:
+                for k in range(child_span[s, 0, 0], o[s]):
+                    n_prims[s] += code[k] & 3 != END
+    return n_prims[0], n_prims[1]
+
+
+@kernel
+def _reserve(a, rows):
+    """``a`` itself if it has at least ``rows`` rows, else a copy grown to at least twice its size."""
+    if rows <= a.shape[0]:
+        return a
+    grown = np.empty((max(rows, 2 * a.shape[0]),) + a.shape[1:], dtype=a.dtype)
+    grown[:a.shape[0]] = a
+    return grown
+
+
+@kernel
+def build_subtree(pos, code, span, n_prims, cell, depth, kind, geom, n_scene_prims, traversal_cost,
+                  intersection_cost, empty_bonus, leaf_size, max_depth, slack, defer_below):
+    """Build the kd-tree over one cell's events, depth first.
+
+    The events live in one arena used like a stack: a split writes both
+    children's events above everything in use (each axis of each child in a
+    slot sized for the worst case), the walk continues into the left child, and
+    when a right child is taken from the task stack, everything above its
+    events -- the finished left subtree's -- is free again.
+
+    Nodes holding fewer than ``defer_below`` primitives are not built but left as
+    placeholders and returned, with copies of their events, as deferred tasks (for
+    building in parallel; pass 0 to build everything). Returns ``(node_split,
+    node_link, leaf_prims, deepest, deferred)`` where ``deferred`` lists ``(node,
+    pos, code, span, n_prims, cell, depth)``.
+    """
+    region = span[2, 1] - span[0, 0]
+    arena_pos = np.empty(4 * region + 64)
+    arena_code = np.empty(4 * region + 64, dtype=np.int64)
+    arena_pos[:region] = pos[span[0, 0]:span[2, 1]]
+    arena_code[:region] = code[span[0, 0]:span[2, 1]]
+    span = span - span[0, 0]
+    top = region
+    capacity = max(64, 4 * n_prims // max(leaf_size, 1))
+    node_split = np.zeros(capacity)
+    node_link = np.zeros((capacity, 2), dtype=np.int32)
+    leaf_prims = np.empty(2 * n_prims + 16, dtype=np.int32)
+    n_nodes = 1
+    n_refs = 0
+    deepest = depth
+    flags = np.empty(n_scene_prims, dtype=np.uint8)
+    poly = np.empty((2, CLIP_VERTICES, 3))
+    box = np.empty(6)
+    fill = np.empty((2, 3), dtype=np.int64)
+    new_pos = np.empty((2, 3, 64))
+    new_code = np.empty((2, 3, 64), dtype=np.int64)
+    child_span = np.empty((2, 3, 2), dtype=np.int64)
+    child_cell = np.empty((2, 6))
+    max_tasks = max_depth + 2
+    task_node = np.empty(max_tasks, dtype=np.int64)
+    task_span = np.empty((max_tasks, 3, 2), dtype=np.int64)
+    task_n = np.empty(max_tasks, dtype=np.int64)
+    task_cell = np.empty((max_tasks, 6))
+    task_depth = np.empty(max_tasks, dtype=np.int64)
+    cell = cell.copy()
+    node = 0
+    n = n_prims
+    sp = 0
+    deferred = List()
+    while True:
+        deepest = max(deepest, depth)
+        best_axis = -1
+        if n < defer_below:
+            lo, hi = span[0, 0], span[2, 1]
+            deferred.append((node, arena_pos[lo:hi].copy(), arena_code[lo:hi].copy(), span - lo, n, cell.copy(),
+                             depth))
+        else:
+            best_cost = np.inf
+            best_pos = 0.0
+            best_planar_left = True
+            if n > leaf_size and depth < max_depth:
+                for axis in range(3):
+                    cost, p, planar_left = _best_plane(arena_pos, arena_code, span[axis, 0], span[axis, 1], axis,
+                                                       cell, n, traversal_cost, intersection_cost, empty_bonus)
+                    if cost < best_cost:
+                        best_cost, best_axis, best_pos, best_planar_left = cost, axis, p, planar_left
+            if best_axis >= 0 and best_cost >= intersection_cost * n:
+                best_axis = -1
+            if best_axis < 0:
+                leaf_prims = _reserve(leaf_prims, n_refs + n)
+                node_link[node, 0] = n_refs
+                node_link[node, 1] = n << 2 | LEAF
+                for i in range(span[0, 0], span[0, 1]):
+                    if arena_code[i] & 3 != END:
+                        leaf_prims[n_refs] = arena_code[i] >> 2
+                        n_refs += 1
+        if best_axis >= 0:
+            axis = best_axis
+            first, last = span[axis, 0], span[axis, 1]
+            n_straddling = _classify(arena_pos, arena_code, first, last, best_pos, best_planar_left, flags)
+            if new_pos.shape[2] < 2 * n_straddling:
+                new_pos = np.empty((2, 3, 4 * n_straddling))
+                new_code = np.empty((2, 3, 4 * n_straddling), dtype=np.int64)
+            for side in range(2):
+                child_cell[side] = cell
+            child_cell[0, axis + 3] = best_pos
+            child_cell[1, axis] = best_pos
+            for side in range(2):
+                _clip_straddling(arena_pos, arena_code, first, last, flags, child_cell[side], kind, geom, slack,
+                                 poly, box, new_pos[side], new_code[side], fill[side])
+            slot = top
+            for side in range(2):
+                for b in range(3):
+                    child_span[side, b, 0] = slot
+                    slot += span[b, 1] - span[b, 0] + fill[side, b]
+            arena_pos = _reserve(arena_pos, slot)
+            arena_code = _reserve(arena_code, slot)
+            n_left, n_right = _distribute(arena_pos, arena_code, span, flags, new_pos, new_code, fill, child_span)
+            child = n_nodes
+            n_nodes += 2
+            node_split = _reserve(node_split, n_nodes)
+            node_link = _reserve(node_link, n_nodes)
+            node_split[node] = best_pos
+            node_link[node, 0] = child
+            node_link[node, 1] = axis
+            task_node[sp] = child + 1
+            task_span[sp] = child_span[1]
+            task_n[sp] = n_right
+            task_cell[sp] = child_cell[1]
+            task_depth[sp] = depth + 1
+            sp += 1
+            node = child
+            span[:] = child_span[0]
+            n = n_left
+            cell[:] = child_cell[0]
+            depth += 1
+            top = slot
+            continue
+        if sp == 0:
+            break
+        sp -= 1
+        node = task_node[sp]
+        span[:] = task_span[sp]
+        n = task_n[sp]
+        cell[:] = task_cell[sp]
+        depth = task_depth[sp]
+        top = span[2, 1]
+    return node_split[:n_nodes].copy(), node_link[:n_nodes].copy(), leaf_prims[:n_refs].copy(), deepest, deferred

@@ -1,0 +1,84 @@
+"""Flat layout of a kd-tree.
+
+Nodes are numbered from the root, 0; the two children of an inner node sit
+side by side (below the plane, then above it), so a node stores one index for
+both. Two arrays of ``n_nodes`` rows:
+
+* ``node_split`` float64: the split plane's coordinate on the node's axis
+  (unused for a leaf);
+* ``node_link`` (n_nodes, 2) int32: column 0 is, for an inner node, the index
+  of its child below the plane (the child above is that + 1) and, for a leaf,
+  the offset of its first reference in ``leaf_prims``; column 1 is
+  ``count << 2 | axis`` with ``axis`` 0, 1, 2 for an inner node (``count`` 0)
+  and 3 for a leaf holding ``count`` references (possibly none: empty leaves
+  are what makes kd-trees skip empty space).
+
+``leaf_prims`` (n_references,) int32 holds the primitive indices of every leaf
+in turn; a primitive that straddles planes is referenced by every leaf whose
+cell it overlaps. The node cells are not stored: the root cell is the box
+``lo``..``hi`` and every split halves a cell at ``node_split``.
+
+To walk it: clip the ray to the root box, then at an inner node compute the
+distance to the plane and visit the near child, the far one, or both
+(the far one pushed with its part of the ray's interval) -- see :mod:`.traverse`.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+from ..._jit import kernel
+
+__all__ = ["LEAF", "KdTreeArrays", "node_cells"]
+
+LEAF = 3
+
+
+class KdTreeArrays(NamedTuple):
+    """The arrays a kd-tree traversal kernel reads."""
+
+    lo: np.ndarray          # (3,) float64, root cell
+    hi: np.ndarray          # (3,) float64
+    node_split: np.ndarray  # (n_nodes,) float64
+    node_link: np.ndarray   # (n_nodes, 2) int32
+    leaf_prims: np.ndarray  # (n_references,) int32
+
+    @property
+    def n_nodes(self) -> int:
+        return len(self.node_split)
+
+    @property
+    def axis(self) -> np.ndarray:
+        return self.node_link[:, 1] & 3
+
+    @property
+    def count(self) -> np.ndarray:
+        return self.node_link[:, 1] >> 2
+
+    @property
+    def nbytes(self) -> int:
+        return int(sum(a.nbytes for a in self))
+
+
+@kernel
+def node_cells(lo, hi, node_split, node_link):
+    """(n_nodes, 6) cell of every node (lo, hi), from the root box and the split planes."""
+    n = node_split.shape[0]
+    cells = np.empty((n, 6))
+    cells[0, :3] = lo
+    cells[0, 3:] = hi
+    depth = np.zeros(n, dtype=np.int64)
+    for node in range(n):
+        axis = node_link[node, 1] & 3
+        if axis == LEAF:
+            continue
+        below = node_link[node, 0]
+        cells[below] = cells[node]
+        cells[below + 1] = cells[node]
+        cells[below, axis + 3] = node_split[node]
+        cells[below + 1, axis] = node_split[node]
+        depth[below] = depth[node] + 1
+        depth[below + 1] = depth[node] + 1
+    return cells, depth

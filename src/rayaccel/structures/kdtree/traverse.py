@@ -1,0 +1,116 @@
+"""Front-to-back stack traversal of the kd-tree, closest hit and any hit.
+
+The classic recursive ray traversal (Jansen 1986; Havran's thesis, 2000, calls
+it TA_B^rec; pbrt's ``KdTreeAggregate::Intersect`` is one), made iterative:
+the ray carries its parametric interval ``[t0, t1]`` inside the current cell.
+At an inner node the plane distance ``t_plane`` cuts that interval; the child
+the ray meets first is the one on the side its direction comes from. Only the
+near child is visited when the plane lies beyond ``t1``, only the far one when
+it lies before ``t0``, and otherwise the near one with ``[t0, t_plane]`` while
+the far one waits on the stack with ``[t_plane, t1]``.
+
+A hit found in a leaf may lie beyond the leaf's cell (the primitive reaches
+into later cells); it is kept as the best candidate, and the walk ends once
+the candidate lies before the current leaf's exit (:func:`settled_before`).
+A ray lying in a split plane (direction component 0, origin on the plane)
+visits both children, since primitives in the plane sit on one side only.
+Stacks are preallocated per thread, as deep as the tree.
+"""
+
+from __future__ import annotations
+
+from numba import prange
+
+from ..._jit import inline_kernel, parallel_kernel, thread_id
+from ...geometry.box import clip_to_box
+from ...geometry.primitive import intersect_prim, ray_setup
+from ..base import EXIT_MARGIN, is_closer, settled_before, store_hit
+from .layout import LEAF
+
+__all__ = ["kdtree_trace_kernel"]
+
+
+@inline_kernel
+def _margin(t):
+    return EXIT_MARGIN * abs(t)
+
+
+@parallel_kernel
+def kdtree_trace_kernel(lo, hi, node_split, node_link, leaf_prims, kind, geom, origins, directions, t_min, t_max,
+                        any_hit, stack_node, stack_t, out_t, out_prim, out_u, out_v, work):
+    """Trace every ray; ``stack_node`` (threads, depth) int32 and ``stack_t`` (threads, depth, 2)."""
+    count_work = work.shape[0] > 0
+    for i in prange(origins.shape[0]):
+        o = (origins[i, 0], origins[i, 1], origins[i, 2])
+        d = (directions[i, 0], directions[i, 1], directions[i, 2])
+        t0, t1 = clip_to_box(lo, hi, o[0], o[1], o[2], d[0], d[1], d[2], t_min[i], t_max[i])
+        if t0 > t1:
+            continue
+        inv = (1.0 / d[0], 1.0 / d[1], 1.0 / d[2])
+        ray = ray_setup(o[0], o[1], o[2], d[0], d[1], d[2])
+        tid = thread_id()
+        ray_t_min = t_min[i]
+        best_t = t_max[i]
+        best_prim = -1
+        best_u = 0.0
+        best_v = 0.0
+        n_nodes = 0
+        n_tests = 0
+        node = 0
+        sp = 0
+        while node >= 0:
+            n_nodes += 1
+            word = node_link[node, 1]
+            axis = word & 3
+            if axis != LEAF:
+                split = node_split[node]
+                below = node_link[node, 0]
+                oa = o[axis]
+                da = d[axis]
+                if da == 0.0:
+                    near = below if oa < split else below + 1
+                    if oa == split:
+                        stack_node[tid, sp] = below
+                        stack_t[tid, sp, 0] = t0
+                        stack_t[tid, sp, 1] = t1
+                        sp += 1
+                    node = near
+                    continue
+                near = below if da > 0.0 else below + 1
+                t_plane = (split - oa) * inv[axis]
+                if t_plane > t1 + _margin(t1):
+                    node = near
+                elif t_plane < t0 - _margin(t0):
+                    node = 2 * below + 1 - near
+                else:
+                    t_plane = min(max(t_plane, t0), t1)
+                    stack_node[tid, sp] = 2 * below + 1 - near
+                    stack_t[tid, sp, 0] = t_plane
+                    stack_t[tid, sp, 1] = t1
+                    sp += 1
+                    node = near
+                    t1 = t_plane
+                continue
+            first = node_link[node, 0]
+            for k in range(first, first + (word >> 2)):
+                prim = leaf_prims[k]
+                n_tests += 1
+                t, u, v = intersect_prim(kind, geom, prim, ray, ray_t_min, best_t)
+                if is_closer(t, prim, best_t, best_prim):
+                    best_t, best_prim, best_u, best_v = t, prim, u, v
+                    if any_hit:
+                        break
+            if (any_hit and best_prim >= 0) or settled_before(best_prim, best_t, t1):
+                break
+            node = -1
+            while sp > 0:
+                sp -= 1
+                if best_prim < 0 or not settled_before(best_prim, best_t, stack_t[tid, sp, 0]):
+                    node = stack_node[tid, sp]
+                    t0 = stack_t[tid, sp, 0]
+                    t1 = stack_t[tid, sp, 1]
+                    break
+        store_hit(i, best_t, best_prim, best_u, best_v, out_t, out_prim, out_u, out_v)
+        if count_work:
+            work[i, 0] = n_nodes
+            work[i, 1] = n_tests
