@@ -7,6 +7,7 @@ from .bvh.accelerator import BVH_CLASSES
 from .grid.accelerator import UniformGrid
 from .kdtree.accelerator import KdTree
 from .none import BruteForce
+from .octree.accelerator import Octree
 
 __all__ = ["build", "build_class", "methods"]
 
@@ -15,6 +16,7 @@ _METHODS = {
     "grid": UniformGrid,
     **{cls.method: cls for cls in BVH_CLASSES},
     "kdtree": KdTree,
+    "octree": Octree,
 }
 
 

@@ -1,0 +1,1 @@
+"""Adaptive octree: build, layout, front-to-back traversal."""

@@ -1,0 +1,103 @@
+"""``octree``: the adaptive octree as an :class:`~rayaccel.structures.base.Accelerator`."""
+
+from __future__ import annotations
+
+import math
+import time
+
+import numba
+import numpy as np
+
+from ...stats import box_area, surface_area_stats
+from ..base import Accelerator
+from ..grid.build_uniform import grid_box
+from ..kdtree.accelerator import check_number
+from .build_adaptive import build_octree
+from .layout import OctreeArrays
+from .traverse import octree_trace_kernel
+
+__all__ = ["Octree"]
+
+_INSERT_MODES = ("bbox", "exact")
+_PAD = 1e-9  # octant boxes are grown by this fraction of their size when inserting
+
+
+class Octree(Accelerator):
+    """``octree``: adaptive octree (Glassner 1984) with parametric front-to-back traversal
+    (Revelles et al. 2000).
+
+    Parameters
+    ----------
+    leaf_size : int, default 8
+        A cell with more primitives than this is split into octants.
+    max_depth : int, optional
+        Depth limit; default ``ceil(log2(n) / 2) + 4``, enough for surfaces
+        (whose occupied cells grow 4x per level) to reach ``leaf_size``.
+    insert : "exact" or "bbox"
+        Put a primitive into the octants it really overlaps (default) or into
+        every octant its bounding box overlaps (faster build, more references).
+    """
+
+    method = "octree"
+
+    def __init__(self, scene, *, leaf_size=8, max_depth=None, insert="exact"):
+        if insert not in _INSERT_MODES:
+            raise ValueError(f"insert must be one of {_INSERT_MODES}, got {insert!r}")
+        n = len(scene)
+        if max_depth is None:
+            max_depth = math.ceil(math.log2(max(n, 2)) / 2) + 4
+        options = {
+            "leaf_size": check_number("leaf_size", leaf_size, integer=True, minimum=1, inclusive=True),
+            "max_depth": check_number("max_depth", max_depth, integer=True, inclusive=True, maximum=30),
+            "insert": insert,
+        }
+        super().__init__(scene, options)
+        start = time.perf_counter()
+        bounds = scene.bounds()
+        lo, hi = grid_box(bounds.scene_lo, bounds.scene_hi)
+        center, link, leaf_prims, depth = build_octree(bounds.lo, bounds.hi, scene.kind, scene.geometry,
+                                                       insert == "exact", lo, hi, options["leaf_size"],
+                                                       options["max_depth"], _PAD)
+        self.tree = OctreeArrays(lo, hi, center, link, leaf_prims)
+        self.max_depth = int(depth)
+        self.build_seconds = time.perf_counter() - start
+
+    def _trace(self, batch, any_hit, t, prim, u, v, work):
+        o = self.tree
+        rows = numba.config.NUMBA_NUM_THREADS
+        stack_node = np.empty((rows, 3 * self.max_depth + 4), dtype=np.int32)
+        stack_t = np.empty((rows, 3 * self.max_depth + 4, 2))
+        octree_trace_kernel(o.lo, o.hi, o.node_center, o.node_link, o.leaf_prims, self.scene.kind, self.scene.geometry,
+                            batch.origins, batch.directions, batch.t_min, batch.t_max, any_hit, stack_node, stack_t,
+                            t, prim, u, v, work)
+
+    def node_cells(self) -> np.ndarray:
+        """(n_nodes, 6) cell of every node, lo and hi."""
+        o = self.tree
+        half = np.empty((o.n_nodes, 3))
+        half[0] = 0.5 * (o.hi - o.lo)
+        inner = np.flatnonzero(~o.leaf)
+        for node in inner:  # breadth-first order: parents before children
+            first = o.node_link[node, 0]
+            half[first:first + 8] = 0.5 * half[node]
+        return np.concatenate((o.node_center - half, o.node_center + half), axis=1)
+
+    def _structure_stats(self) -> dict:
+        o = self.tree
+        leaf = o.leaf
+        counts = o.node_link[leaf, 1]
+        cells = self.node_cells()
+        areas = box_area(cells[:, :3], cells[:, 3:])
+        nonempty = int(np.count_nonzero(counts))
+        result = {
+            "nodes": o.n_nodes,
+            "leaves": int(leaf.sum()),
+            "nonempty_leaves": nonempty,
+            "max_depth": self.max_depth,
+            "references": len(o.leaf_prims),
+            "avg_prims_per_nonempty_leaf": float(counts.sum()) / max(nonempty, 1),
+            "bytes": o.nbytes + self.scene.geometry.nbytes,
+        }
+        result.update(surface_area_stats(areas[0], step_areas=areas[~leaf], leaf_areas=areas[leaf],
+                                         leaf_counts=counts))
+        return result
