@@ -5,6 +5,7 @@ from __future__ import annotations
 from ..scene import Spheres, TriangleMesh
 from .bvh.accelerator import BVH_CLASSES
 from .grid.accelerator import UniformGrid
+from .hgrid.accelerator import HierarchicalGrid
 from .kdtree.accelerator import KdTree
 from .none import BruteForce
 from .octree.accelerator import Octree
@@ -14,6 +15,7 @@ __all__ = ["build", "build_class", "methods"]
 _METHODS = {
     "none": BruteForce,
     "grid": UniformGrid,
+    "hgrid": HierarchicalGrid,
     **{cls.method: cls for cls in BVH_CLASSES},
     "kdtree": KdTree,
     "octree": Octree,

@@ -2,16 +2,14 @@
 
 from __future__ import annotations
 
-import contextlib
-import threading
 import time
 
-import numba
 import numpy as np
 
 from ...stats import box_area, surface_area_stats
 from ..base import Accelerator
 from .build_uniform import build_grid, grid_box, resolution_for
+from .mailbox import MailboxPool
 from .traverse import grid_trace_kernel
 
 __all__ = ["UniformGrid"]
@@ -57,10 +55,7 @@ class UniformGrid(Accelerator):
         res = self._resolution(resolution, density, hi - lo, len(scene))
         self.grid = build_grid(bounds, lo, hi, scene.kind, scene.geometry, res, insert == "exact")
         self.build_seconds = time.perf_counter() - start
-        self.mailbox = bool(mailbox)
-        self._mailbox_lock = threading.Lock()
-        self._free_mailboxes = []
-        self._next_ray_id = 0
+        self.mailboxes = MailboxPool(len(scene), enabled=bool(mailbox))
 
     def _resolution(self, resolution, density, extent, n):
         if resolution is None:
@@ -78,28 +73,9 @@ class UniformGrid(Accelerator):
             raise ValueError(f"resolution {tuple(res)} has more than 2**27 cells")
         return res.astype(np.int64)
 
-    @contextlib.contextmanager
-    def _mailbox_for(self, n_rays: int):
-        """Yield a mailbox no other call is using (empty when mailboxing is off) and a fresh
-        range of ray ids to stamp it with; the mailbox returns to the pool afterwards."""
-        if not self.mailbox:
-            yield np.zeros((0, 0), dtype=np.int64), 0
-            return
-        with self._mailbox_lock:
-            mailbox = self._free_mailboxes.pop() if self._free_mailboxes else None
-            base = self._next_ray_id
-            self._next_ray_id += n_rays
-        if mailbox is None:
-            mailbox = np.full((numba.config.NUMBA_NUM_THREADS, len(self.scene)), -1, dtype=np.int64)
-        try:
-            yield mailbox, base
-        finally:
-            with self._mailbox_lock:
-                self._free_mailboxes.append(mailbox)
-
     def _trace(self, batch, any_hit, t, prim, u, v, work):
         g = self.grid
-        with self._mailbox_for(len(batch.origins)) as (mailbox, base):
+        with self.mailboxes.lend(len(batch.origins)) as (mailbox, base):
             grid_trace_kernel(g.lo, g.hi, g.res, g.cell_size, g.cell_first, g.cell_prims,
                               self.scene.kind, self.scene.geometry, batch.origins, batch.directions,
                               batch.t_min, batch.t_max, any_hit, mailbox, base, t, prim, u, v, work)

@@ -32,10 +32,10 @@ from ..._jit import kernel, parallel_kernel, thread_count
 from ...geometry.overlap import prim_overlaps_box
 from .layout import GridArrays
 
-__all__ = ["MAX_CELLS", "grid_box", "resolution_for", "build_grid"]
+__all__ = ["MAX_CELLS", "CELL_PAD", "grid_box", "resolution_for", "cell_span", "build_grid"]
 
 MAX_CELLS = 1 << 27
-_CELL_PAD = 1e-6  # cells are grown by this fraction of their size when inserting
+CELL_PAD = 1e-6  # cells are grown by this fraction of their size when inserting
 
 
 def grid_box(scene_lo: np.ndarray, scene_hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -57,8 +57,10 @@ def resolution_for(extent: np.ndarray, n_cells: float) -> np.ndarray:
 
 
 @kernel
-def _cell_span(lo, hi, grid_lo, cell_size, res, axis):
-    pad = _CELL_PAD * cell_size[axis]
+def cell_span(lo, hi, grid_lo, cell_size, res, axis):
+    """First and last cell on ``axis`` that the interval ``lo..hi``, grown by ``CELL_PAD``
+    of a cell, reaches; clamped to the grid."""
+    pad = CELL_PAD * cell_size[axis]
     first = int(math.floor((lo - pad - grid_lo[axis]) / cell_size[axis]))
     last = int(math.floor((hi + pad - grid_lo[axis]) / cell_size[axis]))
     return max(first, 0), min(last, res[axis] - 1)
@@ -71,7 +73,7 @@ def _z_slabs(prim_lo, prim_hi, grid_lo, cell_size, res, slab_depth, n_slabs):
     spans = np.empty((n_prims, 2), dtype=np.int64)
     slab_first = np.zeros(n_slabs + 1, dtype=np.int64)
     for prim in range(n_prims):
-        z0, z1 = _cell_span(prim_lo[prim, 2], prim_hi[prim, 2], grid_lo, cell_size, res, 2)
+        z0, z1 = cell_span(prim_lo[prim, 2], prim_hi[prim, 2], grid_lo, cell_size, res, 2)
         spans[prim, 0] = z0 // slab_depth
         spans[prim, 1] = z1 // slab_depth
         for s in range(spans[prim, 0], spans[prim, 1] + 1):
@@ -96,17 +98,17 @@ def _insert(prim_lo, prim_hi, kind, geom, exact, grid_lo, cell_size, res, slab_d
     Slabs of cell layers run in parallel; each writes only to its own cells.
     """
     nx, ny = res[0], res[1]
-    hx = 0.5 * cell_size[0] * (1.0 + 2.0 * _CELL_PAD)
-    hy = 0.5 * cell_size[1] * (1.0 + 2.0 * _CELL_PAD)
-    hz = 0.5 * cell_size[2] * (1.0 + 2.0 * _CELL_PAD)
+    hx = 0.5 * cell_size[0] * (1.0 + 2.0 * CELL_PAD)
+    hy = 0.5 * cell_size[1] * (1.0 + 2.0 * CELL_PAD)
+    hz = 0.5 * cell_size[2] * (1.0 + 2.0 * CELL_PAD)
     for slab in prange(slab_first.shape[0] - 1):
         slab_z0 = slab * slab_depth
         slab_z1 = slab_z0 + slab_depth - 1
         for k in range(slab_first[slab], slab_first[slab + 1]):
             prim = slab_prims[k]
-            x0, x1 = _cell_span(prim_lo[prim, 0], prim_hi[prim, 0], grid_lo, cell_size, res, 0)
-            y0, y1 = _cell_span(prim_lo[prim, 1], prim_hi[prim, 1], grid_lo, cell_size, res, 1)
-            z0, z1 = _cell_span(prim_lo[prim, 2], prim_hi[prim, 2], grid_lo, cell_size, res, 2)
+            x0, x1 = cell_span(prim_lo[prim, 0], prim_hi[prim, 0], grid_lo, cell_size, res, 0)
+            y0, y1 = cell_span(prim_lo[prim, 1], prim_hi[prim, 1], grid_lo, cell_size, res, 1)
+            z0, z1 = cell_span(prim_lo[prim, 2], prim_hi[prim, 2], grid_lo, cell_size, res, 2)
             test = exact and (x1 > x0 or y1 > y0 or z1 > z0)
             for z in range(max(z0, slab_z0), min(z1, slab_z1) + 1):
                 for y in range(y0, y1 + 1):

@@ -26,11 +26,11 @@ from ...geometry.box import clip_to_box
 from ...geometry.primitive import intersect_prim, ray_setup
 from ..base import is_closer, store_hit
 
-__all__ = ["grid_trace_kernel"]
+__all__ = ["axis_start", "grid_trace_kernel"]
 
 
 @kernel
-def _axis_start(o, d, t_enter, lo, size, n):
+def axis_start(o, d, t_enter, lo, size, n):
     """Cell of the entry point on one axis, step direction, first boundary crossing, crossing interval."""
     c = int(math.floor((o + t_enter * d - lo) / size))
     c = min(max(c, 0), n - 1)
@@ -61,9 +61,9 @@ def grid_trace_kernel(grid_lo, grid_hi, res, cell_size, cell_first, cell_prims, 
         if t_enter > t_exit:
             continue
         ray = ray_setup(ox, oy, oz, dx, dy, dz)
-        cx, step_x, next_x, delta_x = _axis_start(ox, dx, t_enter, grid_lo[0], cell_size[0], res[0])
-        cy, step_y, next_y, delta_y = _axis_start(oy, dy, t_enter, grid_lo[1], cell_size[1], res[1])
-        cz, step_z, next_z, delta_z = _axis_start(oz, dz, t_enter, grid_lo[2], cell_size[2], res[2])
+        cx, step_x, next_x, delta_x = axis_start(ox, dx, t_enter, grid_lo[0], cell_size[0], res[0])
+        cy, step_y, next_y, delta_y = axis_start(oy, dy, t_enter, grid_lo[1], cell_size[1], res[1])
+        cz, step_z, next_z, delta_z = axis_start(oz, dz, t_enter, grid_lo[2], cell_size[2], res[2])
         tid = thread_id() if use_mailbox else 0
         stamp = ray_id_base + i
         best_t = t_max[i]

@@ -1,0 +1,49 @@
+"""Reusable per-thread mailboxes for the grid traversals.
+
+A mailbox (Amanatides & Woo 1987) remembers, per primitive, the last ray
+that tested it, so that a primitive referenced by several cells is tested
+once per ray. Here a mailbox is an int64 array (threads, n_prims) of ray
+stamps; ray ``i`` of a call stamps ``base + i``, so a mailbox never needs
+clearing as long as every call gets a fresh range of stamps.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import threading
+
+import numba
+import numpy as np
+
+__all__ = ["MailboxPool"]
+
+
+class MailboxPool:
+    """Mailboxes for one structure, allocated on first use and lent to one query at a time,
+    so concurrent queries from several Python threads never share one."""
+
+    def __init__(self, n_prims: int, enabled: bool = True):
+        self.n_prims = n_prims
+        self.enabled = enabled
+        self._lock = threading.Lock()
+        self._free = []
+        self._next_stamp = 0
+
+    @contextlib.contextmanager
+    def lend(self, n_rays: int):
+        """Yield ``(mailbox, base)``: a mailbox no other call is using (empty when
+        mailboxing is off) and the first of ``n_rays`` fresh stamps."""
+        if not self.enabled:
+            yield np.zeros((0, 0), dtype=np.int64), 0
+            return
+        with self._lock:
+            mailbox = self._free.pop() if self._free else None
+            base = self._next_stamp
+            self._next_stamp += n_rays
+        if mailbox is None:
+            mailbox = np.full((numba.config.NUMBA_NUM_THREADS, self.n_prims), -1, dtype=np.int64)
+        try:
+            yield mailbox, base
+        finally:
+            with self._lock:
+                self._free.append(mailbox)

@@ -1,0 +1,146 @@
+"""Nested 3D-DDA through a hierarchical grid, with mailboxing.
+
+The walk of :mod:`..grid.traverse` (Amanatides & Woo 1987), made recursive
+without recursion: on entering a cell that holds a nested grid, the DDA state
+of the outer grid (cell, steps, next crossings, and the end of its stretch of
+the ray) is saved in a per-thread array, one row per level, and a DDA starts
+in the nested grid at the distance where the ray entered the cell, limited to
+where it leaves it. When the inner walk runs out, the saved state comes back
+and the outer walk steps on. Hits are kept as candidates and the walk ends
+once the best lies before the exit of the cell being visited, at whatever
+level; one mailbox stamp per ray serves all levels.
+"""
+
+from __future__ import annotations
+
+from numba import prange
+
+from ..._jit import parallel_kernel, thread_id
+from ...geometry.box import clip_to_box
+from ...geometry.primitive import intersect_prim, ray_setup
+from ..base import is_closer, store_hit
+from ..grid.traverse import axis_start
+
+__all__ = ["hgrid_trace_kernel"]
+
+
+@parallel_kernel
+def hgrid_trace_kernel(lo, hi, grid_lo, grid_res, grid_cell_size, grid_cell_base, cell_child, cell_first, cell_prims,
+                       kind, geom, origins, directions, t_min, t_max, any_hit, mailbox, ray_id_base, saved_int,
+                       saved_float, out_t, out_prim, out_u, out_v, work):
+    """Trace every ray; ``saved_int`` (threads, levels, 7) int64 and ``saved_float``
+    (threads, levels, 7) hold the outer walks' DDA states; ``mailbox`` as in the uniform grid."""
+    use_mailbox = mailbox.shape[0] > 0
+    count_work = work.shape[0] > 0
+    for i in prange(origins.shape[0]):
+        ox, oy, oz = origins[i, 0], origins[i, 1], origins[i, 2]
+        dx, dy, dz = directions[i, 0], directions[i, 1], directions[i, 2]
+        t_enter, stretch_end = clip_to_box(lo, hi, ox, oy, oz, dx, dy, dz, t_min[i], t_max[i])
+        if t_enter > stretch_end:
+            continue
+        ray = ray_setup(ox, oy, oz, dx, dy, dz)
+        tid = thread_id()
+        stamp = ray_id_base + i
+        best_t = t_max[i]
+        best_prim = -1
+        best_u = 0.0
+        best_v = 0.0
+        n_cells = 0
+        n_tests = 0
+        n_skips = 0
+        level = 0
+        g = 0
+        t_cell = t_enter
+        cx, step_x, next_x, delta_x = axis_start(ox, dx, t_cell, grid_lo[g, 0], grid_cell_size[g, 0], grid_res[g, 0])
+        cy, step_y, next_y, delta_y = axis_start(oy, dy, t_cell, grid_lo[g, 1], grid_cell_size[g, 1], grid_res[g, 1])
+        cz, step_z, next_z, delta_z = axis_start(oz, dz, t_cell, grid_lo[g, 2], grid_cell_size[g, 2], grid_res[g, 2])
+        while True:
+            n_cells += 1
+            cell = grid_cell_base[g] + cx + grid_res[g, 0] * (cy + grid_res[g, 1] * cz)
+            cell_exit = min(next_x, next_y, next_z)
+            child = cell_child[cell]
+            if child >= 0:
+                saved_int[tid, level, 0] = g
+                saved_int[tid, level, 1] = cx
+                saved_int[tid, level, 2] = cy
+                saved_int[tid, level, 3] = cz
+                saved_int[tid, level, 4] = step_x
+                saved_int[tid, level, 5] = step_y
+                saved_int[tid, level, 6] = step_z
+                saved_float[tid, level, 0] = next_x
+                saved_float[tid, level, 1] = next_y
+                saved_float[tid, level, 2] = next_z
+                saved_float[tid, level, 3] = delta_x
+                saved_float[tid, level, 4] = delta_y
+                saved_float[tid, level, 5] = delta_z
+                saved_float[tid, level, 6] = stretch_end
+                level += 1
+                g = child
+                stretch_end = min(stretch_end, cell_exit)
+                cx, step_x, next_x, delta_x = axis_start(ox, dx, t_cell, grid_lo[g, 0], grid_cell_size[g, 0],
+                                                         grid_res[g, 0])
+                cy, step_y, next_y, delta_y = axis_start(oy, dy, t_cell, grid_lo[g, 1], grid_cell_size[g, 1],
+                                                         grid_res[g, 1])
+                cz, step_z, next_z, delta_z = axis_start(oz, dz, t_cell, grid_lo[g, 2], grid_cell_size[g, 2],
+                                                         grid_res[g, 2])
+                continue
+            for k in range(cell_first[cell], cell_first[cell + 1]):
+                prim = cell_prims[k]
+                if use_mailbox:
+                    if mailbox[tid, prim] == stamp:
+                        n_skips += 1
+                        continue
+                    mailbox[tid, prim] = stamp
+                n_tests += 1
+                t, u, v = intersect_prim(kind, geom, prim, ray, t_min[i], best_t)
+                if is_closer(t, prim, best_t, best_prim):
+                    best_t, best_prim, best_u, best_v = t, prim, u, v
+                    if any_hit:
+                        break
+            if (any_hit and best_prim >= 0) or (best_prim >= 0 and best_t <= cell_exit):
+                break
+            done = False
+            while True:  # step on; where a walk runs out, resume the walk it was nested in
+                cell_exit = min(next_x, next_y, next_z)
+                moved = cell_exit <= stretch_end
+                if moved:
+                    if next_x == cell_exit:
+                        cx += step_x
+                        moved = 0 <= cx < grid_res[g, 0]
+                        next_x += delta_x
+                    elif next_y == cell_exit:
+                        cy += step_y
+                        moved = 0 <= cy < grid_res[g, 1]
+                        next_y += delta_y
+                    else:
+                        cz += step_z
+                        moved = 0 <= cz < grid_res[g, 2]
+                        next_z += delta_z
+                if moved:
+                    t_cell = cell_exit
+                    break
+                if level == 0:
+                    done = True
+                    break
+                level -= 1
+                g = saved_int[tid, level, 0]
+                cx = saved_int[tid, level, 1]
+                cy = saved_int[tid, level, 2]
+                cz = saved_int[tid, level, 3]
+                step_x = saved_int[tid, level, 4]
+                step_y = saved_int[tid, level, 5]
+                step_z = saved_int[tid, level, 6]
+                next_x = saved_float[tid, level, 0]
+                next_y = saved_float[tid, level, 1]
+                next_z = saved_float[tid, level, 2]
+                delta_x = saved_float[tid, level, 3]
+                delta_y = saved_float[tid, level, 4]
+                delta_z = saved_float[tid, level, 5]
+                stretch_end = saved_float[tid, level, 6]
+            if done:
+                break
+        store_hit(i, best_t, best_prim, best_u, best_v, out_t, out_prim, out_u, out_v)
+        if count_work:
+            work[i, 0] = n_cells
+            work[i, 1] = n_tests
+            work[i, 2] = n_skips
