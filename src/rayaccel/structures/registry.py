@@ -6,6 +6,7 @@ from ..scene import Spheres, TriangleMesh
 from .bvh.accelerator import BVH_CLASSES
 from .grid.accelerator import UniformGrid
 from .hgrid.accelerator import HierarchicalGrid
+from .hybrid.accelerator import GridBvh
 from .kdtree.accelerator import KdTree
 from .none import BruteForce
 from .octree.accelerator import Octree
@@ -16,6 +17,7 @@ _METHODS = {
     "none": BruteForce,
     "grid": UniformGrid,
     "hgrid": HierarchicalGrid,
+    "grid-bvh": GridBvh,
     **{cls.method: cls for cls in BVH_CLASSES},
     "kdtree": KdTree,
     "octree": Octree,

@@ -28,7 +28,7 @@ from .split_morton import split_morton
 from .split_sah_binned import split_sah_binned
 from .split_sah_sweep import split_sah_sweep
 
-__all__ = ["SPATIAL_MEDIAN", "OBJECT_MEDIAN", "SAH_SWEEP", "SAH_BINNED", "MORTON", "build_top_down"]
+__all__ = ["SPATIAL_MEDIAN", "OBJECT_MEDIAN", "SAH_SWEEP", "SAH_BINNED", "MORTON", "build_subtree", "build_top_down"]
 
 SPATIAL_MEDIAN = 0
 OBJECT_MEDIAN = 1
@@ -38,7 +38,7 @@ MORTON = 4
 
 
 @kernel
-def _build_subtree(lo, hi, centroid, order, sorted_codes, strategy, max_leaf_size, bins, traversal_cost,
+def build_subtree(lo, hi, centroid, order, sorted_codes, strategy, max_leaf_size, bins, traversal_cost,
                    intersection_cost, node_box, node_first, node_count, root, start, end, next_free,
                    defer_below, deferred):
     """Build the subtree of ``order[start:end]`` with its root in slot ``root`` and its other
@@ -137,7 +137,7 @@ def build_top_down(lo, hi, centroid, order, sorted_codes, strategy, max_leaf_siz
     node_first = np.empty(capacity, dtype=np.int32)
     node_count = np.empty(capacity, dtype=np.int32)
     deferred = np.zeros((n + 1, 3), dtype=np.int64)
-    top_end = _build_subtree(lo, hi, centroid, order, sorted_codes, strategy, max_leaf_size, bins, traversal_cost,
+    top_end = build_subtree(lo, hi, centroid, order, sorted_codes, strategy, max_leaf_size, bins, traversal_cost,
                              intersection_cost, node_box, node_first, node_count, 0, 0, n, 1, defer_below, deferred)
     n_tasks = deferred[0, 0]
     tasks = deferred[1:n_tasks + 1]
@@ -151,7 +151,7 @@ def build_top_down(lo, hi, centroid, order, sorted_codes, strategy, max_leaf_siz
     for worker in prange(workers):
         for k in range(worker, n_tasks, workers):
             task = by_size[k]
-            _build_subtree(lo, hi, centroid, order, sorted_codes, strategy, max_leaf_size, bins, traversal_cost,
+            build_subtree(lo, hi, centroid, order, sorted_codes, strategy, max_leaf_size, bins, traversal_cost,
                            intersection_cost, node_box, node_first, node_count, tasks[task, 0], tasks[task, 1],
                            tasks[task, 2], block[k], 0, unused)
     used = block[n_tasks]

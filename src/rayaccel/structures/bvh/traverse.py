@@ -25,7 +25,7 @@ from ...geometry.primitive import intersect_prim, ray_setup
 from ...geometry.sphere import sphere_span
 from ..base import is_closer, store_hit
 
-__all__ = ["BOX", "SPHERE_VOLUME", "KDOP", "KDOP_NORMALS", "volume_ray_setup", "bvh_trace_kernel"]
+__all__ = ["BOX", "SPHERE_VOLUME", "KDOP", "KDOP_NORMALS", "enter_box", "volume_ray_setup", "bvh_trace_kernel"]
 
 BOX = 0
 SPHERE_VOLUME = 1
@@ -54,7 +54,7 @@ def _near_far(near, far, enter, exit_):
 
 
 @inline_kernel
-def _enter_box(box, node, ox, oy, oz, ix, iy, iz, near_x, near_y, near_z, t_min, t_max):
+def enter_box(box, node, ox, oy, oz, ix, iy, iz, near_x, near_y, near_z, t_min, t_max):
     """Slab test with the near face of each axis chosen once per ray (``near_* = 3`` where the
     direction is negative), as in pbrt's ``dirIsNeg``: no swap per node."""
     enter, exit_ = _near_far((box[node, near_x] - ox) * ix, (box[node, 3 - near_x] - ox) * ix, t_min, t_max)
@@ -85,7 +85,7 @@ def _enter_sphere(volume, node, ox, oy, oz, dx, dy, dz, t_min, t_max):
 def _enter(bounds_kind, box, volume, node, ray, proj_o, proj_inv, near, t_min, t_max):
     """Entry distance of the ray into ``node``'s volume within ``[t_min, t_max]``; inf if it misses."""
     if bounds_kind == BOX:
-        return _enter_box(box, node, ray[0], ray[1], ray[2], proj_inv[0], proj_inv[1], proj_inv[2],
+        return enter_box(box, node, ray[0], ray[1], ray[2], proj_inv[0], proj_inv[1], proj_inv[2],
                           near[0], near[1], near[2], t_min, t_max)
     if bounds_kind == KDOP:
         return _enter_kdop(volume, node, proj_o, proj_inv, t_min, t_max)

@@ -1,0 +1,1 @@
+"""Hybrids of the lecture: a uniform grid whose dense cells hold BVHs."""

@@ -1,0 +1,120 @@
+"""``grid-bvh``: the grid-BVH hybrid as an :class:`~rayaccel.structures.base.Accelerator`."""
+
+from __future__ import annotations
+
+import time
+
+import numba
+import numpy as np
+
+from ...stats import box_area, surface_area_stats
+from ..base import Accelerator
+from ..grid.mailbox import MailboxPool
+from ..kdtree.accelerator import check_number
+from .build_grid_bvh import build_grid_bvh
+from .traverse import grid_bvh_trace_kernel
+
+__all__ = ["GridBvh"]
+
+_INSERT_MODES = ("bbox", "exact")
+_ROUNDING_PAD = 1e-11  # as for the BVH: node boxes grown by this fraction of the scene's size
+
+
+class GridBvh(Accelerator):
+    """``grid-bvh``: a coarse uniform grid whose dense cells hold binned-SAH BVHs.
+
+    Parameters
+    ----------
+    density : float, default 0.5
+        Grid cells per primitive; coarser than ``grid``'s 8 since the BVHs
+        take over where cells fill up.
+    threshold : int, default 8
+        Cells with more references than this get a BVH; the others are
+        tested one by one.
+    max_leaf_size, bins, traversal_cost, intersection_cost
+        Of the cells' BVHs, as for ``bvh-binned`` (defaults 4, 16, 3, 1).
+    insert : "bbox" or "exact"
+        As for ``grid``.
+    mailbox : bool, default True
+        As for ``grid``.
+    """
+
+    method = "grid-bvh"
+
+    def __init__(self, scene, *, density=0.5, threshold=8, max_leaf_size=4, bins=16, traversal_cost=3.0,
+                 intersection_cost=1.0, insert="bbox", mailbox=True):
+        if insert not in _INSERT_MODES:
+            raise ValueError(f"insert must be one of {_INSERT_MODES}, got {insert!r}")
+        options = {
+            "density": check_number("density", density),
+            "threshold": check_number("threshold", threshold, integer=True, minimum=1, inclusive=True),
+            "max_leaf_size": check_number("max_leaf_size", max_leaf_size, integer=True, minimum=1, inclusive=True),
+            "bins": check_number("bins", bins, integer=True, minimum=2, inclusive=True),
+            "traversal_cost": check_number("traversal_cost", traversal_cost),
+            "intersection_cost": check_number("intersection_cost", intersection_cost),
+            "insert": insert,
+            "mailbox": bool(mailbox),
+        }
+        super().__init__(scene, options)
+        start = time.perf_counter()
+        bounds = scene.bounds()
+        pad = _ROUNDING_PAD * float(np.abs(np.concatenate((bounds.scene_lo, bounds.scene_hi))).max()
+                                    + (bounds.scene_hi - bounds.scene_lo).max())
+        self.hybrid, self.bvh_depth = build_grid_bvh(
+            bounds, scene.kind, scene.geometry, options["density"], options["threshold"], options["max_leaf_size"],
+            options["bins"], options["traversal_cost"], options["intersection_cost"], insert == "exact", pad)
+        self.build_seconds = time.perf_counter() - start
+        self.mailboxes = MailboxPool(len(scene), enabled=options["mailbox"])
+
+    def _trace(self, batch, any_hit, t, prim, u, v, work):
+        h = self.hybrid
+        rows = numba.config.NUMBA_NUM_THREADS
+        stack_node = np.empty((rows, self.bvh_depth + 2), dtype=np.int32)
+        stack_t = np.empty((rows, self.bvh_depth + 2))
+        with self.mailboxes.lend(len(batch.origins)) as (mailbox, base):
+            grid_bvh_trace_kernel(h.lo, h.hi, h.res, h.cell_size, h.cell_first, h.cell_prims, h.cell_root, h.node_box,
+                                  h.node_first, h.node_count, self.scene.kind, self.scene.geometry, batch.origins,
+                                  batch.directions, batch.t_min, batch.t_max, any_hit, mailbox, base, stack_node,
+                                  stack_t, t, prim, u, v, work)
+
+    def _structure_stats(self) -> dict:
+        h = self.hybrid
+        counts = np.diff(h.cell_first)
+        n_cells = len(counts)
+        used = self._used_nodes()
+        leaf = h.node_count[used] > 0
+        in_bvh = h.cell_root >= 0
+        leaf_counts = np.concatenate((counts[~in_bvh], h.node_count[used][leaf]))
+        nonempty = int(np.count_nonzero(leaf_counts))
+        cell_area = float(box_area(np.zeros(3), h.cell_size))
+        node_areas = box_area(h.node_box[used, :3], h.node_box[used, 3:])
+        result = {
+            "resolution": tuple(int(r) for r in h.res),
+            "bvh_cells": int(in_bvh.sum()),
+            "nodes": n_cells + int(used.sum()),
+            "leaves": len(leaf_counts),
+            "nonempty_leaves": nonempty,
+            "max_depth": 1 + self.bvh_depth,
+            "references": int(h.cell_first[-1]),
+            "avg_prims_per_nonempty_leaf": float(leaf_counts.sum()) / max(nonempty, 1),
+            "bytes": h.nbytes,
+        }
+        # every cell entered is a step; in BVH cells every node visited is one too
+        steps = np.concatenate((np.full(n_cells, cell_area), node_areas))
+        leaf_areas = np.concatenate((np.full(int((~in_bvh).sum()), cell_area), node_areas[leaf]))
+        result.update(surface_area_stats(box_area(h.lo, h.hi), step_areas=steps, leaf_areas=leaf_areas,
+                                         leaf_counts=leaf_counts))
+        return result
+
+    def _used_nodes(self) -> np.ndarray:
+        """Mask of the node slots that the cells' BVHs actually use."""
+        h = self.hybrid
+        used = np.zeros(len(h.node_count), dtype=bool)
+        frontier = h.cell_root[h.cell_root >= 0].astype(np.int64)
+        used[frontier] = True
+        while len(frontier):
+            frontier = frontier[h.node_count[frontier] == 0]
+            children = np.concatenate((h.node_first[frontier], h.node_first[frontier] + 1)).astype(np.int64)
+            used[children] = True
+            frontier = children
+        return used

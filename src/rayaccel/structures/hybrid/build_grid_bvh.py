@@ -1,0 +1,69 @@
+"""Grid-BVH hybrid construction: a uniform grid, then a binned-SAH BVH in every dense cell.
+
+The hybrid the lecture sketches (grids and hierarchies combined, as in
+Cazals, Drettakis & Puech's "Filtering, Clustering and Hierarchy Construction"
+1995 and the two-level schemes since): a coarse uniform grid skips empty space
+with cheap DDA steps, and cells crowded with primitives -- where a grid would
+need many more cells -- are searched by a BVH instead. The grid is built as in
+:mod:`..grid.build_uniform`; the cells with more than ``threshold`` references
+then get a BVH over their references with the top-down binned SAH builder of
+:mod:`..bvh.build_top_down`, all cells in parallel, each into its own block
+of node slots.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import prange
+
+from ..._jit import parallel_kernel
+from ..bvh.build_top_down import SAH_BINNED, build_subtree
+from ..bvh.nodes import node_depths
+from ..grid.build_uniform import build_grid, grid_box, resolution_for
+from .layout import GridBvhArrays
+
+__all__ = ["build_grid_bvh"]
+
+
+@parallel_kernel
+def _build_cell_bvhs(lo, hi, centroid, order, row_first, row_end, cell_root, max_leaf_size, bins, traversal_cost,
+                     intersection_cost, node_box, node_first, node_count):
+    """Build the BVH of every dense cell ``d`` over ``order[row_first[d]:row_end[d]]``, rooted in
+    slot ``cell_root[d]`` with its other nodes in the slots after it."""
+    unused_codes = np.zeros(0, dtype=np.int64)
+    for d in prange(row_first.shape[0]):
+        deferred = np.zeros((1, 3), dtype=np.int64)
+        build_subtree(lo, hi, centroid, order, unused_codes, SAH_BINNED, max_leaf_size, bins, traversal_cost,
+                      intersection_cost, node_box, node_first, node_count, cell_root[d], row_first[d], row_end[d],
+                      cell_root[d] + 1, 0, deferred)
+
+
+def build_grid_bvh(bounds, kind, geom, density, threshold, max_leaf_size, bins, traversal_cost, intersection_cost,
+                   exact, pad) -> tuple[GridBvhArrays, int]:
+    """Build the hybrid; returns the arrays and the deepest BVH's depth. Node boxes are grown by ``pad``."""
+    lo, hi = grid_box(bounds.scene_lo, bounds.scene_hi)
+    grid = build_grid(bounds, lo, hi, kind, geom, resolution_for(hi - lo, density * len(geom)), exact)
+    counts = np.diff(grid.cell_first)
+    dense = np.flatnonzero(counts > threshold)
+    sizes = counts[dense].astype(np.int64)
+    cell_root = np.full(len(counts), -1, dtype=np.int32)
+    blocks = np.zeros(len(dense) + 1, dtype=np.int64)
+    np.cumsum(2 * sizes - 1, out=blocks[1:])
+    cell_root[dense] = blocks[:-1]
+    order = grid.cell_prims.astype(np.int64)
+    n_nodes = int(blocks[-1])
+    node_box = np.zeros((n_nodes, 6))
+    node_first = np.zeros(n_nodes, dtype=np.int32)
+    node_count = np.ones(n_nodes, dtype=np.int32)  # unused slots read as empty leaves
+    depth = 0
+    if len(dense):
+        _build_cell_bvhs(bounds.lo[order], bounds.hi[order], bounds.centroid[order], order,
+                         grid.cell_first[dense].astype(np.int64), grid.cell_first[dense + 1].astype(np.int64),
+                         blocks[:-1], max_leaf_size, bins, traversal_cost, intersection_cost, node_box, node_first,
+                         node_count)
+        node_box[:, :3] -= pad
+        node_box[:, 3:] += pad
+        depth = int(node_depths(node_first, node_count).max())
+    arrays = GridBvhArrays(lo, hi, grid.res, grid.cell_size, grid.cell_first, order.astype(np.int32), cell_root,
+                           node_box, node_first, node_count)
+    return arrays, depth

@@ -1,0 +1,140 @@
+"""Traversal of the grid-BVH hybrid: 3D-DDA between cells, a BVH stack walk inside dense ones.
+
+Between cells the walk is the uniform grid's (:mod:`..grid.traverse`:
+candidates kept, stop once the best lies before the current cell's exit,
+mailboxing across cells). In a cell with a BVH the cell's references are
+reached through that BVH's front-to-back stack traversal
+(:mod:`..bvh.traverse`) instead of one by one; the mailbox still skips
+primitives that an earlier cell already tested. Stacks are per thread.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import prange
+
+from ..._jit import inline_kernel, parallel_kernel, thread_id
+from ...geometry.box import clip_to_box
+from ...geometry.primitive import intersect_prim, ray_setup
+from ..base import is_closer, store_hit
+from ..bvh.traverse import enter_box
+from ..grid.traverse import axis_start
+
+__all__ = ["grid_bvh_trace_kernel"]
+
+
+@inline_kernel
+def _test_refs(first, end, cell_prims, mailbox, tid, stamp, kind, geom, ray, t_min, best_t, best_prim, best_u,
+               best_v, n_tests, n_skips, any_hit):
+    """Test references ``first:end``, skipping those already stamped; returns the best hit
+    and the counters, updated."""
+    for k in range(first, end):
+        prim = cell_prims[k]
+        if mailbox.shape[0] > 0:
+            if mailbox[tid, prim] == stamp:
+                n_skips += 1
+                continue
+            mailbox[tid, prim] = stamp
+        n_tests += 1
+        t, u, v = intersect_prim(kind, geom, prim, ray, t_min, best_t)
+        if is_closer(t, prim, best_t, best_prim):
+            best_t, best_prim, best_u, best_v = t, prim, u, v
+            if any_hit:
+                break
+    return best_t, best_prim, best_u, best_v, n_tests, n_skips
+
+
+@parallel_kernel
+def grid_bvh_trace_kernel(lo, hi, res, cell_size, cell_first, cell_prims, cell_root, node_box, node_first, node_count,
+                          kind, geom, origins, directions, t_min, t_max, any_hit, mailbox, ray_id_base, stack_node,
+                          stack_t, out_t, out_prim, out_u, out_v, work):
+    """Trace every ray; ``mailbox`` as in the uniform grid, stacks (threads, depth + 2)."""
+    nx, ny, nz = res[0], res[1], res[2]
+    count_work = work.shape[0] > 0
+    for i in prange(origins.shape[0]):
+        ox, oy, oz = origins[i, 0], origins[i, 1], origins[i, 2]
+        dx, dy, dz = directions[i, 0], directions[i, 1], directions[i, 2]
+        t_enter, t_exit = clip_to_box(lo, hi, ox, oy, oz, dx, dy, dz, t_min[i], t_max[i])
+        if t_enter > t_exit:
+            continue
+        ray = ray_setup(ox, oy, oz, dx, dy, dz)
+        ix, iy, iz = 1.0 / dx, 1.0 / dy, 1.0 / dz
+        near_x, near_y, near_z = 0 if ix >= 0.0 else 3, 1 if iy >= 0.0 else 4, 2 if iz >= 0.0 else 5
+        cx, step_x, next_x, delta_x = axis_start(ox, dx, t_enter, lo[0], cell_size[0], nx)
+        cy, step_y, next_y, delta_y = axis_start(oy, dy, t_enter, lo[1], cell_size[1], ny)
+        cz, step_z, next_z, delta_z = axis_start(oz, dz, t_enter, lo[2], cell_size[2], nz)
+        tid = thread_id()
+        stamp = ray_id_base + i
+        ray_t_min = t_min[i]
+        best_t, best_prim, best_u, best_v = t_max[i], -1, 0.0, 0.0
+        n_tests = 0
+        n_skips = 0
+        n_steps = 0
+        while True:
+            n_steps += 1
+            cell = cx + nx * (cy + ny * cz)
+            root = cell_root[cell]
+            if root < 0:
+                best_t, best_prim, best_u, best_v, n_tests, n_skips = _test_refs(
+                    cell_first[cell], cell_first[cell + 1], cell_prims, mailbox, tid, stamp, kind, geom, ray,
+                    ray_t_min, best_t, best_prim, best_u, best_v, n_tests, n_skips, any_hit)
+            else:
+                node = root
+                sp = 0
+                if enter_box(node_box, root, ox, oy, oz, ix, iy, iz, near_x, near_y, near_z,
+                             ray_t_min, best_t) == np.inf:
+                    node = -1
+                while node >= 0:
+                    n_steps += 1
+                    count = node_count[node]
+                    if count > 0:
+                        first = node_first[node]
+                        best_t, best_prim, best_u, best_v, n_tests, n_skips = _test_refs(
+                            first, first + count, cell_prims, mailbox, tid, stamp, kind, geom, ray, ray_t_min,
+                            best_t, best_prim, best_u, best_v, n_tests, n_skips, any_hit)
+                        if any_hit and best_prim >= 0:
+                            break
+                        node = -1
+                    else:
+                        left = node_first[node]
+                        t_left = enter_box(node_box, left, ox, oy, oz, ix, iy, iz, near_x, near_y, near_z,
+                                           ray_t_min, best_t)
+                        t_right = enter_box(node_box, left + 1, ox, oy, oz, ix, iy, iz, near_x, near_y,
+                                            near_z, ray_t_min, best_t)
+                        near_child, far_child, t_far = left, left + 1, t_right
+                        if t_right < t_left:
+                            near_child, far_child, t_far = left + 1, left, t_left
+                        node = near_child if min(t_left, t_right) != np.inf else -1
+                        if node >= 0 and t_far != np.inf:
+                            stack_node[tid, sp] = far_child
+                            stack_t[tid, sp] = t_far
+                            sp += 1
+                    while node < 0 and sp > 0:
+                        sp -= 1
+                        if stack_t[tid, sp] <= best_t:
+                            node = stack_node[tid, sp]
+            if best_prim >= 0 and (any_hit or best_t <= min(next_x, next_y, next_z)):
+                break
+            cell_exit = min(next_x, next_y, next_z)
+            if cell_exit > t_exit:
+                break
+            if next_x == cell_exit:
+                cx += step_x
+                if cx < 0 or cx >= nx:
+                    break
+                next_x += delta_x
+            elif next_y == cell_exit:
+                cy += step_y
+                if cy < 0 or cy >= ny:
+                    break
+                next_y += delta_y
+            else:
+                cz += step_z
+                if cz < 0 or cz >= nz:
+                    break
+                next_z += delta_z
+        store_hit(i, best_t, best_prim, best_u, best_v, out_t, out_prim, out_u, out_v)
+        if count_work:
+            work[i, 0] = n_steps
+            work[i, 1] = n_tests
+            work[i, 2] = n_skips
