@@ -248,17 +248,24 @@ _BUILTIN_MESHES = {
 
 def builtin_scenes() -> list[str]:
     """Names :func:`load_scene` knows besides file paths (``spheres:N`` takes any N)."""
-    return sorted(_BUILTIN_MESHES) + ["spheres:N"]
+    from .procedural import PROCEDURAL_SCENES
+
+    return sorted(_BUILTIN_MESHES) + sorted(PROCEDURAL_SCENES) + ["spheres:N"]
 
 
 def load_scene(spec: str):
-    """A scene from a name: a built-in mesh, ``spheres:N[:seed]`` or a mesh file path."""
+    """A scene from a name: a built-in mesh, a procedural scene (:mod:`rayaccel.procedural`),
+    ``spheres:N[:seed]`` or a mesh file path."""
+    from .procedural import PROCEDURAL_SCENES
+
     match = re.fullmatch(r"spheres:([0-9_,]+)(?::([0-9]+))?", spec)
     if match:
         n = int(match.group(1).replace("_", "").replace(",", ""))
         return random_spheres(n, seed=int(match.group(2) or 0))
     if spec in _BUILTIN_MESHES:
         return load_mesh(data_directory() / _BUILTIN_MESHES[spec])
+    if spec in PROCEDURAL_SCENES:
+        return PROCEDURAL_SCENES[spec]()
     if Path(spec).suffix or Path(spec).exists():
         return load_mesh(spec)
     raise ValueError(f"unknown scene {spec!r}: give a mesh file or one of {', '.join(builtin_scenes())}")

@@ -25,10 +25,10 @@ class HierarchicalGrid(Accelerator):
 
     Parameters
     ----------
-    density : float, default 2
+    density : float, default 0.5
         Cells per primitive in every grid: the top grid has ``density * n``
         cells, a grid nested in a cell with ``m`` primitives ``density * m``.
-    threshold : int, default 12
+    threshold : int, default 4
         A cell holding more references than this gets a nested grid.
     max_levels : int, default 3
         Levels of grids, the top grid included.
@@ -40,7 +40,7 @@ class HierarchicalGrid(Accelerator):
 
     method = "hgrid"
 
-    def __init__(self, scene, *, density=2.0, threshold=12, max_levels=3, insert="bbox", mailbox=True):
+    def __init__(self, scene, *, density=0.5, threshold=4, max_levels=3, insert="bbox", mailbox=True):
         if insert not in _INSERT_MODES:
             raise ValueError(f"insert must be one of {_INSERT_MODES}, got {insert!r}")
         options = {
