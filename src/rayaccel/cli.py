@@ -189,6 +189,34 @@ def _cmd_experiment(args) -> None:
         with progress_bar("grid resolution sweep", total, enabled=not args.quiet) as advance:
             rows = grid_resolution.run(scenes, side=args.size, progress=advance)
         table, plot = grid_resolution.write_report(rows, args.out, args.size)
+    elif args.name == "kdtree-table":
+        from .experiments import kdtree_table
+
+        scenes = args.scenes or list(kdtree_table.DEFAULT_SCENES)
+        method = args.method or "kdtree"
+        if method not in methods():
+            raise CliError(f"unknown method {method!r}; choose one of {', '.join(methods())}")
+        with progress_bar(f"kd-tree table for {method}", len(scenes), enabled=not args.quiet) as advance:
+            columns = kdtree_table.run(scenes, method, side=args.size, progress=advance)
+        table, plot = kdtree_table.write_report(columns, method, args.out, args.size)
+    elif args.name == "structures":
+        from .experiments import structures
+
+        if args.scenes and len(args.scenes) > 1:
+            raise CliError("experiment structures takes one scene")
+        scene = args.scenes[0] if args.scenes else "forest-small-chair"
+        chosen = [m for m in methods() if m != "none"]
+        with progress_bar(f"every structure on {scene}", len(chosen), enabled=not args.quiet) as advance:
+            rows = structures.run(scene, chosen, side=args.size, out_dir=Path(args.out), progress=advance)
+        table, plot = structures.write_report(rows, args.out, args.size)
+    elif args.name == "leaf-size":
+        from .experiments import leaf_size
+
+        scenes = args.scenes or ["bunny", "dragon-203k"]
+        total = len(scenes) * len(leaf_size.SWEPT) * len(leaf_size.LEAF_SIZES)
+        with progress_bar("leaf size sweep", total, enabled=not args.quiet) as advance:
+            rows = leaf_size.run(scenes, side=args.size, progress=advance)
+        table, plot = leaf_size.write_report(rows, args.out, args.size)
     else:
         from .experiments import bounding_volumes
 
@@ -259,9 +287,11 @@ def _parser() -> argparse.ArgumentParser:
     stats.set_defaults(func=_cmd_stats)
 
     experiment = sub.add_parser("experiment", help="reproduce a lecture experiment")
-    experiment.add_argument("name", choices=["grid-vs-none", "grid-resolution", "bvh", "bounding-volumes"])
+    experiment.add_argument("name", choices=["grid-vs-none", "grid-resolution", "bvh", "bounding-volumes",
+                                             "kdtree-table", "structures", "leaf-size"])
     experiment.add_argument("--max-n", type=int, default=1_000_000, help="grid-vs-none: largest scene size")
-    experiment.add_argument("--scenes", nargs="+", help="grid-resolution, bvh, bounding-volumes: scenes to measure")
+    experiment.add_argument("--scenes", nargs="+", help="scenes to measure (structures: one scene)")
+    experiment.add_argument("--method", help="kdtree-table: the structure tabulated (default kdtree)")
     experiment.add_argument("--size", type=int, default=512, help="image width and height (primary rays per side)")
     experiment.add_argument("--out", default="rayaccel-out", help="folder for the table and plot")
     experiment.set_defaults(func=_cmd_experiment)

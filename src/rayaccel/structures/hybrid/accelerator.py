@@ -81,13 +81,20 @@ class GridBvh(Accelerator):
         h = self.hybrid
         counts = np.diff(h.cell_first)
         n_cells = len(counts)
-        used = self._used_nodes()
+        node_cell = self._node_cells()
+        used = node_cell >= 0
         leaf = h.node_count[used] > 0
         in_bvh = h.cell_root >= 0
         leaf_counts = np.concatenate((counts[~in_bvh], h.node_count[used][leaf]))
         nonempty = int(np.count_nonzero(leaf_counts))
         cell_area = float(box_area(np.zeros(3), h.cell_size))
-        node_areas = box_area(h.node_box[used, :3], h.node_box[used, 3:])
+        # a node is reached only by rays through its cell, and tested only on their stretch in it
+        cell = node_cell[used]
+        cell_xyz = np.stack(np.unravel_index(cell, tuple(h.res[::-1]))[::-1], axis=1)
+        cell_lo = h.lo + cell_xyz * h.cell_size
+        clipped_lo = np.maximum(h.node_box[used, :3], cell_lo)
+        clipped_hi = np.minimum(h.node_box[used, 3:], cell_lo + h.cell_size)
+        node_areas = box_area(clipped_lo, clipped_hi)
         result = {
             "resolution": tuple(int(r) for r in h.res),
             "bvh_cells": int(in_bvh.sum()),
@@ -99,22 +106,23 @@ class GridBvh(Accelerator):
             "avg_prims_per_nonempty_leaf": float(leaf_counts.sum()) / max(nonempty, 1),
             "bytes": h.nbytes,
         }
-        # every cell entered is a step; in BVH cells every node visited is one too
         steps = np.concatenate((np.full(n_cells, cell_area), node_areas))
         leaf_areas = np.concatenate((np.full(int((~in_bvh).sum()), cell_area), node_areas[leaf]))
         result.update(surface_area_stats(box_area(h.lo, h.hi), step_areas=steps, leaf_areas=leaf_areas,
                                          leaf_counts=leaf_counts))
         return result
 
-    def _used_nodes(self) -> np.ndarray:
-        """Mask of the node slots that the cells' BVHs actually use."""
+    def _node_cells(self) -> np.ndarray:
+        """The grid cell whose BVH each node slot belongs to; -1 for unused slots."""
         h = self.hybrid
-        used = np.zeros(len(h.node_count), dtype=bool)
-        frontier = h.cell_root[h.cell_root >= 0].astype(np.int64)
-        used[frontier] = True
+        node_cell = np.full(len(h.node_count), -1, dtype=np.int64)
+        cells = np.flatnonzero(h.cell_root >= 0)
+        frontier = h.cell_root[cells].astype(np.int64)
+        node_cell[frontier] = cells
         while len(frontier):
             frontier = frontier[h.node_count[frontier] == 0]
-            children = np.concatenate((h.node_first[frontier], h.node_first[frontier] + 1)).astype(np.int64)
-            used[children] = True
-            frontier = children
-        return used
+            left = h.node_first[frontier].astype(np.int64)
+            node_cell[left] = node_cell[frontier]
+            node_cell[left + 1] = node_cell[frontier]
+            frontier = np.concatenate((left, left + 1))
+        return node_cell

@@ -4,8 +4,9 @@ Between cells the walk is the uniform grid's (:mod:`..grid.traverse`:
 candidates kept, stop once the best lies before the current cell's exit,
 mailboxing across cells). In a cell with a BVH the cell's references are
 reached through that BVH's front-to-back stack traversal
-(:mod:`..bvh.traverse`) instead of one by one; the mailbox still skips
-primitives that an earlier cell already tested. Stacks are per thread.
+(:mod:`..bvh.traverse`) instead of one by one, its node tests limited to the
+ray's stretch through the cell; the mailbox still skips primitives that an
+earlier cell already tested. Stacks are per thread.
 """
 
 from __future__ import annotations
@@ -16,7 +17,7 @@ from numba import prange
 from ..._jit import inline_kernel, parallel_kernel, thread_id
 from ...geometry.box import clip_to_box
 from ...geometry.primitive import intersect_prim, ray_setup
-from ..base import is_closer, store_hit
+from ..base import EXIT_MARGIN, is_closer, store_hit
 from ..bvh.traverse import enter_box
 from ..grid.traverse import axis_start
 
@@ -70,9 +71,15 @@ def grid_bvh_trace_kernel(lo, hi, res, cell_size, cell_first, cell_prims, cell_r
         n_tests = 0
         n_skips = 0
         n_steps = 0
+        t_cell = t_enter
         while True:
             n_steps += 1
             cell = cx + nx * (cy + ny * cz)
+            cell_exit = min(next_x, next_y, next_z)
+            # nodes are tested only on the ray's stretch through this cell (with a margin for
+            # rounding): a primitive hit beyond it is referenced by, and found in, a later cell
+            span_lo = max(ray_t_min, t_cell - EXIT_MARGIN * abs(t_cell))
+            span_hi = cell_exit + EXIT_MARGIN * abs(cell_exit)
             root = cell_root[cell]
             if root < 0:
                 best_t, best_prim, best_u, best_v, n_tests, n_skips = _test_refs(
@@ -82,7 +89,7 @@ def grid_bvh_trace_kernel(lo, hi, res, cell_size, cell_first, cell_prims, cell_r
                 node = root
                 sp = 0
                 if enter_box(node_box, root, ox, oy, oz, ix, iy, iz, near_x, near_y, near_z,
-                             ray_t_min, best_t) == np.inf:
+                             span_lo, min(best_t, span_hi)) == np.inf:
                     node = -1
                 while node >= 0:
                     n_steps += 1
@@ -98,9 +105,9 @@ def grid_bvh_trace_kernel(lo, hi, res, cell_size, cell_first, cell_prims, cell_r
                     else:
                         left = node_first[node]
                         t_left = enter_box(node_box, left, ox, oy, oz, ix, iy, iz, near_x, near_y, near_z,
-                                           ray_t_min, best_t)
+                                           span_lo, min(best_t, span_hi))
                         t_right = enter_box(node_box, left + 1, ox, oy, oz, ix, iy, iz, near_x, near_y,
-                                            near_z, ray_t_min, best_t)
+                                            near_z, span_lo, min(best_t, span_hi))
                         near_child, far_child, t_far = left, left + 1, t_right
                         if t_right < t_left:
                             near_child, far_child, t_far = left + 1, left, t_left
@@ -113,9 +120,8 @@ def grid_bvh_trace_kernel(lo, hi, res, cell_size, cell_first, cell_prims, cell_r
                         sp -= 1
                         if stack_t[tid, sp] <= best_t:
                             node = stack_node[tid, sp]
-            if best_prim >= 0 and (any_hit or best_t <= min(next_x, next_y, next_z)):
+            if best_prim >= 0 and (any_hit or best_t <= cell_exit):
                 break
-            cell_exit = min(next_x, next_y, next_z)
             if cell_exit > t_exit:
                 break
             if next_x == cell_exit:
@@ -133,6 +139,7 @@ def grid_bvh_trace_kernel(lo, hi, res, cell_size, cell_first, cell_prims, cell_r
                 if cz < 0 or cz >= nz:
                     break
                 next_z += delta_z
+            t_cell = cell_exit
         store_hit(i, best_t, best_prim, best_u, best_v, out_t, out_prim, out_u, out_v)
         if count_work:
             work[i, 0] = n_steps

@@ -1,0 +1,108 @@
+"""The lecture's kd-tree statistics table, for the kd-tree or any other structure.
+
+One column per scene, the lecture's rows exactly: triangles, leaf nodes,
+non-empty leaf nodes, construction time, average triangles per non-empty leaf,
+the expected traversal steps, leaves visited, intersections and cost per ray
+from surface areas (DESIGN.md section 4; for rays that hit the root box), the
+render time of one frame (primary rays plus one shadow ray per hit), and the
+measured average nodes and intersections per primary ray. The default scenes
+are the scanned meshes and the procedural forest scenes of
+:mod:`rayaccel.procedural`. Writes ``kdtree-table-METHOD.md`` and a plot of
+build and render time per scene.
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+from ..render import default_camera, render
+from ..scene import load_scene
+from ..structures.registry import build
+from ._report import markdown_table, new_figure, save_figure
+
+__all__ = ["DEFAULT_SCENES", "ROWS", "run", "write_report", "warm_up"]
+
+DEFAULT_SCENES = ("dragon", "dragon-203k", "armadillo", "buddha", "bunny", "forest", "forest-large-chair",
+                  "forest-small-chair")
+
+# (row label, statistic key, format)
+ROWS = (
+    ("# triangles", "primitives", "{:,}"),
+    ("# leaf nodes", "leaves", "{:,}"),
+    ("# non-empty leaf nodes", "nonempty_leaves", "{:,}"),
+    ("construction time", "build_seconds", "{:.3f} s"),
+    ("avg # triangles / non-empty leaf node", "avg_prims_per_nonempty_leaf", "{:.2f}"),
+    ("exp # traversal steps", "expected_traversal_steps", "{:.1f}"),
+    ("exp # leaves visited", "expected_leaves_visited", "{:.2f}"),
+    ("exp # intersections", "expected_intersections", "{:.2f}"),
+    ("exp cost", "expected_cost", "{:.1f}"),
+    ("render time", "render_seconds", "{:.3f} s"),
+    ("avg # nodes / ray", "avg_nodes_per_ray", "{:.1f}"),
+    ("avg # intersections / ray", "avg_intersections_per_ray", "{:.2f}"),
+)
+
+
+def warm_up(methods) -> None:
+    """Compile (or load from Numba's cache) every kernel the methods use, so nothing timed compiles."""
+    tiny = load_scene("spheres:64")
+    for method in methods:
+        accel = build(tiny, method)
+        render(accel, default_camera(tiny), 8, 8)
+    mesh = load_scene("cornell-box")
+    for method in methods:
+        render(build(mesh, method), default_camera(mesh), 8, 8)
+
+
+def measure(name: str, scene, method: str, side: int, options: dict | None = None) -> dict:
+    """Statistics of ``method`` on one scene, with the render time of a ``side`` x ``side`` frame."""
+    start = time.perf_counter()
+    accel = build(scene, method, **(options or {}))
+    build_seconds = time.perf_counter() - start
+    camera = default_camera(scene)
+    stats = accel.stats(*camera.rays(side, side))
+    stats["build_seconds"] = build_seconds
+    result = render(accel, camera, side, side)
+    stats["render_seconds"] = result.trace_seconds
+    stats["scene"] = name
+    stats["accel"] = accel
+    stats["result"] = result
+    return stats
+
+
+def run(scenes=DEFAULT_SCENES, method: str = "kdtree", side: int = 512, progress=None) -> list[dict]:
+    """One statistics dict per scene; ``progress(done, total)`` after each."""
+    warm_up([method])
+    columns = []
+    for s, name in enumerate(scenes):
+        stats = measure(name, load_scene(name), method, side)
+        del stats["accel"], stats["result"]
+        columns.append(stats)
+        if progress is not None:
+            progress(s + 1, len(scenes))
+    return columns
+
+
+def write_report(columns: list[dict], method: str, out_dir, side: int) -> tuple[Path, Path]:
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    headers = [""] + [c["scene"] for c in columns]
+    table = [[label] + [fmt.format(c[key]) for c in columns] for label, key, fmt in ROWS]
+    lines = [f"# The kd-tree table for `{method}`", "",
+             f"Expected figures per ray that hits the root box, from surface areas; render time: one {side}x{side} "
+             "frame, primary rays plus one shadow ray per hit and light; nodes and intersections per ray: measured on "
+             "the primary rays (closest hit). Grids count cells as nodes.", ""]
+    lines += markdown_table(headers, table, align_right_from=1)
+    path = out_dir / f"kdtree-table-{method}.md"
+    path.write_text("\n".join(lines) + "\n")
+    fig, (left, right) = new_figure(2)
+    names = [c["scene"] for c in columns]
+    positions = range(len(columns))
+    left.bar(positions, [c["build_seconds"] for c in columns], color="C0")
+    right.bar(positions, [c["render_seconds"] for c in columns], color="C1")
+    left.set(yscale="log", ylabel="seconds", title=f"{method}: construction time")
+    right.set(yscale="log", ylabel="seconds", title=f"{method}: render time, {side}x{side} with shadows")
+    for ax in (left, right):
+        ax.set_xticks(list(positions), names, rotation=40, ha="right", fontsize=8)
+        ax.grid(True, axis="y", which="both", alpha=0.3)
+    return path, save_figure(fig, out_dir / f"kdtree-table-{method}.png")

@@ -1,0 +1,72 @@
+"""Every structure side by side on one scene: build, expected cost, render time, work per ray.
+
+For each method but brute force: construction time, the expected cost per ray
+from surface areas (the SAH cost for trees; for grids every cell entered
+counts as a step), the render time of one frame (primary plus shadow rays),
+the measured nodes (or cells) and intersections per primary ray, and a
+heatmap of the nodes visited per pixel. Writes ``structures-SCENE.md``, a bar
+chart, and the heatmaps.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from ..render import save_heatmap, save_png
+from ..scene import load_scene
+from ..structures.registry import methods as all_methods
+from ._report import markdown_table, new_figure, save_figure
+from .kdtree_table import measure, warm_up
+
+__all__ = ["run", "write_report"]
+
+
+def run(scene_name: str = "forest-small-chair", methods=None, side: int = 512, out_dir=None,
+        progress=None) -> list[dict]:
+    """Measure every method on one scene, writing its image and heatmap into ``out_dir``."""
+    methods = methods or [m for m in all_methods() if m != "none"]
+    warm_up(methods)
+    scene = load_scene(scene_name)
+    rows = []
+    for k, method in enumerate(methods):
+        stats = measure(scene_name, scene, method, side)
+        result = stats.pop("result")
+        stats.pop("accel")
+        if out_dir is not None:
+            stem = Path(out_dir) / f"structures-{scene_name.replace(':', '-')}-{method}"
+            save_png(result.image, stem.with_suffix(".png"))
+            save_heatmap(result.nodes, stem.with_name(stem.name + "-nodes.png"), "nodes or cells visited",
+                         f"{scene_name}, {method}")
+        rows.append(stats)
+        if progress is not None:
+            progress(k + 1, len(methods))
+    return rows
+
+
+def write_report(rows: list[dict], out_dir, side: int) -> tuple[Path, Path]:
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    scene = rows[0]["scene"]
+    headers = ["method", "build s", "expected cost", "render s", "nodes/ray", "tests/ray", "references",
+               "bytes"]
+    table = [[r["method"], f"{r['build_seconds']:.3f}", f"{r['expected_cost']:.1f}", f"{r['render_seconds']:.3f}",
+              f"{r['avg_nodes_per_ray']:.1f}", f"{r['avg_intersections_per_ray']:.2f}", f"{r['references']:,}",
+              f"{r['bytes']:,}"] for r in rows]
+    lines = [f"# Every structure on `{scene}` ({rows[0]['primitives']:,} primitives)", "",
+             f"Expected cost per ray that hits the root box, from surface areas, with each method's own C_t and C_i "
+             f"(grids: every cell entered is a step). Render: one {side}x{side} frame with shadow rays. Nodes and "
+             f"tests per ray: measured on the primary rays. Heatmaps: `structures-{scene}-METHOD-nodes.png`.", ""]
+    lines += markdown_table(headers, table, align_right_from=1)
+    path = out_dir / f"structures-{scene.replace(':', '-')}.md"
+    path.write_text("\n".join(lines) + "\n")
+    fig, (left, right) = new_figure(2)
+    names = [r["method"] for r in rows]
+    positions = range(len(rows))
+    left.bar(positions, [r["build_seconds"] for r in rows], color="C0")
+    right.bar(positions, [r["render_seconds"] for r in rows], color="C1")
+    left.set(yscale="log", ylabel="seconds", title=f"{scene}: construction time")
+    right.set(yscale="log", ylabel="seconds", title=f"{scene}: render time, {side}x{side} with shadows")
+    for ax in (left, right):
+        ax.set_xticks(list(positions), names, rotation=40, ha="right", fontsize=8)
+        ax.grid(True, axis="y", which="both", alpha=0.3)
+    return path, save_figure(fig, out_dir / f"structures-{scene.replace(':', '-')}.png")
