@@ -83,3 +83,33 @@ def test_grid_resolution_experiment(tmp_path):
     table = (tmp_path / "grid-resolution.md").read_text()
     assert "cost model optimum" in table and "| spheres:500 | 64 |" in table
     assert (tmp_path / "grid-resolution.png").exists()
+
+
+def test_kdtree_table_experiment(tmp_path):
+    assert main(["--quiet", "experiment", "kdtree-table", "--scenes", "cornell-box", "spheres:300", "--size", "16",
+                 "--out", str(tmp_path)]) == 0
+    table = (tmp_path / "kdtree-table-kdtree.md").read_text()
+    from rayaccel.experiments.kdtree_table import ROWS
+
+    for label, _, _ in ROWS:
+        assert f"| {label} |" in table
+    assert "| cornell-box | spheres:300 |" in table
+    assert (tmp_path / "kdtree-table-kdtree.png").exists()
+    assert main(["--quiet", "experiment", "kdtree-table", "--method", "octree", "--scenes", "cornell-box",
+                 "--size", "16", "--out", str(tmp_path)]) == 0
+    assert (tmp_path / "kdtree-table-octree.md").exists()
+    assert main(["--quiet", "experiment", "kdtree-table", "--method", "bsp", "--out", str(tmp_path)]) == 2
+
+
+def test_structures_and_leaf_size_experiments(tmp_path):
+    assert main(["--quiet", "experiment", "structures", "--scenes", "spheres:300", "--size", "16",
+                 "--out", str(tmp_path)]) == 0
+    table = (tmp_path / "structures-spheres-300.md").read_text()
+    for method in ("grid", "hgrid", "grid-bvh", "kdtree", "octree", "bvh-binned"):
+        assert f"| {method} |" in table
+        assert (tmp_path / f"structures-spheres-300-{method}-nodes.png").exists()
+    assert main(["--quiet", "experiment", "leaf-size", "--scenes", "cornell-box", "--size", "16",
+                 "--out", str(tmp_path)]) == 0
+    table = (tmp_path / "leaf-size.md").read_text()
+    assert "| cornell-box | kdtree | 32 |" in table and "| cornell-box | bvh-binned | 1 |" in table
+    assert (tmp_path / "leaf-size.png").exists()

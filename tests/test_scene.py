@@ -45,3 +45,15 @@ def test_random_spheres_keep_the_covered_fraction():
         assert (balls.centers - balls.radii[:, None] >= 0).all()
         assert (balls.centers + balls.radii[:, None] <= 1).all()
     np.testing.assert_array_equal(ra.random_spheres(50, seed=3).centers, ra.load_scene("spheres:50:3").centers)
+
+
+def test_procedural_forest_scenes():
+    forest = ra.load_scene("forest")
+    assert 19_000 <= len(forest) <= 21_000
+    large, small = ra.load_scene("forest-large-chair"), ra.load_scene("forest-small-chair")
+    assert len(large) == len(small) > len(forest) + 30_000
+    chair_extent = lambda scene: np.ptp(scene.vertices[len(forest.vertices):], axis=0)
+    assert chair_extent(large).max() > 25 and chair_extent(small).max() < 1
+    b = forest.bounds()
+    assert b.scene_hi[1] - b.scene_lo[1] < 10  # y is up, the forest is flat
+    assert "forest-small-chair" in ra.builtin_scenes()

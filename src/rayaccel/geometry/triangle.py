@@ -7,7 +7,9 @@ two sheared vertices, computed bit-identically for both triangles that share
 the edge (with opposite sign), so a ray through a shared edge or vertex of a
 closed mesh always hits at least one of them. Edge functions that are exactly
 zero count as inside. Everything is float64, which the paper's fallback for
-zero edge functions asks for anyway.
+zero edge functions asks for anyway. A triangle whose projected area (det) is
+within rounding error of zero is degenerate and never hit, so that no
+structure can disagree with another about a hit computed from noise.
 """
 
 from __future__ import annotations
@@ -17,6 +19,8 @@ import numpy as np
 from .._jit import inline_kernel
 
 __all__ = ["shear_setup", "intersect_triangle"]
+
+_DEGENERATE = 1e-13  # relative size of det below which a triangle counts as degenerate
 
 
 @inline_kernel
@@ -66,7 +70,12 @@ def intersect_triangle(geom, prim, ox, oy, oz, kx, ky, kz, sx, sy, sz, t_min, t_
     if (e0 < 0.0 or e1 < 0.0 or e2 < 0.0) and (e0 > 0.0 or e1 > 0.0 or e2 > 0.0):
         return np.inf, 0.0, 0.0
     det = e0 + e1 + e2
-    if det == 0.0:
+    # A triangle that is degenerate (collinear vertices) has det = 0 exactly, but its rounded
+    # edge functions can leave a tiny det of either sign and a meaningless t; any det within
+    # the rounding error of its six products counts as zero.
+    size = (abs(cx_ * by_) + abs(cy_ * bx_) + abs(ax_ * cy_) + abs(ay_ * cx_) + abs(bx_ * ay_)
+            + abs(by_ * ax_))
+    if abs(det) <= _DEGENERATE * size:
         return np.inf, 0.0, 0.0
     t = sz * (e0 * az_ + e1 * bz_ + e2 * cz_) / det
     if t >= t_min and t <= t_max:

@@ -8,7 +8,7 @@ import numpy as np
 
 from ...stats import box_area, surface_area_stats
 from ..base import Accelerator
-from .build_uniform import build_grid, grid_box, resolution_for
+from .build_uniform import build_grid, capped_resolution, grid_box, resolution_for
 from .mailbox import MailboxPool
 from .traverse import grid_trace_kernel
 
@@ -25,6 +25,9 @@ class UniformGrid(Accelerator):
     density : float, default 8
         Cells per primitive: the grid has about ``density * n`` cells (the
         lecture's lambda). More cells mean fewer tests per cell but more steps.
+        A resolution from ``density`` or ``"cost"`` is made coarser where it
+        would store more than 64 references per primitive (primitives that
+        span much of the scene), which would make the build blow up.
     resolution : None, "cost", int or (3,) ints
         None uses ``density``; ``"cost"`` uses the cost model's optimum
         ``2 n C_i / C_c`` cells with costs calibrated on this machine
@@ -53,6 +56,8 @@ class UniformGrid(Accelerator):
         bounds = scene.bounds()
         lo, hi = grid_box(bounds.scene_lo, bounds.scene_hi)
         res = self._resolution(resolution, density, hi - lo, len(scene))
+        if resolution is None or isinstance(resolution, str):
+            res = capped_resolution(bounds, lo, hi, res)
         self.grid = build_grid(bounds, lo, hi, scene.kind, scene.geometry, res, insert == "exact")
         self.build_seconds = time.perf_counter() - start
         self.mailboxes = MailboxPool(len(scene), enabled=bool(mailbox))

@@ -32,9 +32,11 @@ from ..._jit import kernel, parallel_kernel, thread_count
 from ...geometry.overlap import prim_overlaps_box
 from .layout import GridArrays
 
-__all__ = ["MAX_CELLS", "CELL_PAD", "grid_box", "resolution_for", "cell_span", "build_grid"]
+__all__ = ["MAX_CELLS", "CELL_PAD", "REFERENCE_BUDGET", "grid_box", "resolution_for", "cell_span",
+           "count_references", "capped_resolution", "build_grid"]
 
 MAX_CELLS = 1 << 27
+REFERENCE_BUDGET = 64  # a resolution chosen for the user stores at most this many references per primitive
 CELL_PAD = 1e-6  # cells are grown by this fraction of their size when inserting
 
 
@@ -125,6 +127,30 @@ def _insert(prim_lo, prim_hi, kind, geom, exact, grid_lo, cell_size, res, slab_d
                             cell_prims[row_end[cell]] = prim
                         else:
                             row_end[cell] += 1
+
+
+@parallel_kernel
+def count_references(prim_lo, prim_hi, grid_lo, cell_size, res):
+    """References a bounding-box insertion into this grid would store (an upper bound for
+    exact insertion)."""
+    total = 0
+    for prim in prange(prim_lo.shape[0]):
+        x0, x1 = cell_span(prim_lo[prim, 0], prim_hi[prim, 0], grid_lo, cell_size, res, 0)
+        y0, y1 = cell_span(prim_lo[prim, 1], prim_hi[prim, 1], grid_lo, cell_size, res, 1)
+        z0, z1 = cell_span(prim_lo[prim, 2], prim_hi[prim, 2], grid_lo, cell_size, res, 2)
+        total += (x1 - x0 + 1) * (y1 - y0 + 1) * (z1 - z0 + 1)
+    return total
+
+
+def capped_resolution(bounds, lo: np.ndarray, hi: np.ndarray, res: np.ndarray) -> np.ndarray:
+    """``res``, made coarser until the grid stores at most ``REFERENCE_BUDGET`` references per
+    primitive. Only scenes whose primitives span much of the grid (many copies of one big
+    primitive, say) need it; without it their references, and build, grow as n times the cells."""
+    res = np.asarray(res, dtype=np.int64)
+    budget = REFERENCE_BUDGET * len(bounds.lo)
+    while res.max() > 1 and count_references(bounds.lo, bounds.hi, lo, (hi - lo) / res, res) > budget:
+        res = np.maximum(1, (res * 0.7).astype(np.int64))
+    return res
 
 
 def build_grid(bounds, lo: np.ndarray, hi: np.ndarray, kind: int, geom: np.ndarray, res: np.ndarray,

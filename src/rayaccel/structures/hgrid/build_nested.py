@@ -6,7 +6,9 @@ Grids", IEEE CG&A 1997. The top grid is a uniform grid of ``density * n``
 cells (:mod:`..grid.build_uniform`). Every cell holding more than
 ``threshold`` references then gets a grid of its own over the cell's box, with
 ``density * m`` cells for its ``m`` primitives, and the primitives move down
-into it; the same happens to the new grids' dense cells, down to ``max_levels``
+into it -- unless that grid would not separate them (its cells would hold
+more than half of them on average) or would store more than
+``REFERENCE_BUDGET`` references per primitive; the same happens to the new grids' dense cells, down to ``max_levels``
 levels. All nested grids of a level are filled at once, in parallel over the
 grids, with the counting-sort insertion of the uniform grid.
 """
@@ -18,7 +20,8 @@ from numba import prange
 
 from ..._jit import parallel_kernel
 from ...geometry.overlap import prim_overlaps_box
-from ..grid.build_uniform import CELL_PAD, MAX_CELLS, build_grid, cell_span, grid_box, resolution_for
+from ..grid.build_uniform import (CELL_PAD, MAX_CELLS, REFERENCE_BUDGET, build_grid, capped_resolution, cell_span,
+                                  grid_box, resolution_for)
 from .layout import HierarchicalGridArrays
 
 __all__ = ["build_hierarchical_grid"]
@@ -56,6 +59,20 @@ def _insert_nested(prim_lo, prim_hi, kind, geom, exact, parent_first, parent_pri
                             cell_prims[row_end[cell]] = prim
                         else:
                             row_end[cell] += 1
+
+
+@parallel_kernel
+def _count_nested(prim_lo, prim_hi, parent_first, parent_prims, grid_lo, cell_size, res, counts):
+    """References each nested grid ``d`` would store with bounding-box insertion."""
+    for d in prange(grid_lo.shape[0]):
+        total = 0
+        for k in range(parent_first[d], parent_first[d + 1]):
+            prim = parent_prims[k]
+            x0, x1 = cell_span(prim_lo[prim, 0], prim_hi[prim, 0], grid_lo[d], cell_size[d], res[d], 0)
+            y0, y1 = cell_span(prim_lo[prim, 1], prim_hi[prim, 1], grid_lo[d], cell_size[d], res[d], 1)
+            z0, z1 = cell_span(prim_lo[prim, 2], prim_hi[prim, 2], grid_lo[d], cell_size[d], res[d], 2)
+            total += (x1 - x0 + 1) * (y1 - y0 + 1) * (z1 - z0 + 1)
+        counts[d] = total
 
 
 def _rows(first: np.ndarray, prims: np.ndarray, cells: np.ndarray):
@@ -96,11 +113,22 @@ def _nested_level(level, bounds, kind, geom, density, threshold, exact):
     cell_lo, cell_hi = _cell_boxes(dense, level.base, level.lo, level.res, level.size)
     parent_prims, parent_first = _rows(level.first, level.prims, dense)
     extent = cell_hi - cell_lo
-    side = (np.prod(extent, axis=1) / (density * np.diff(parent_first))) ** (1.0 / 3.0)
+    m = np.diff(parent_first)
+    side = (np.prod(extent, axis=1) / (density * m)) ** (1.0 / 3.0)
     res = np.clip(np.round(extent / side[:, None]), 1, 256).astype(np.int64)
+    size = extent / res
+    # nest only where it pays: the nested cells must separate the primitives (hold half of
+    # them or fewer on average) without the references growing past the budget
+    references = np.empty(len(dense), dtype=np.int64)
+    _count_nested(bounds.lo, bounds.hi, parent_first, parent_prims, cell_lo, size, res, references)
+    useful = (references <= REFERENCE_BUDGET * m) & (references < 0.5 * m * res.prod(axis=1))
+    if not useful.all():
+        dense, cell_lo, res, size = dense[useful], cell_lo[useful], res[useful], size[useful]
+        if len(dense) == 0:
+            return None
+        parent_prims, parent_first = _rows(level.first, level.prims, dense)
     if res.prod(axis=1).sum() > MAX_CELLS:
         return None
-    size = extent / res
     nested = _Level(cell_lo, res, size, None, None)
     row_end = np.zeros(nested.base[-1] + 1, dtype=np.int64)
     args = (bounds.lo, bounds.hi, kind, geom, exact, parent_first, parent_prims, cell_lo, size, res, nested.base[:-1])
@@ -118,7 +146,8 @@ def _nested_level(level, bounds, kind, geom, density, threshold, exact):
 def build_hierarchical_grid(bounds, kind, geom, density, threshold, max_levels, exact) -> HierarchicalGridArrays:
     """Build the hierarchical grid over a scene's primitive ``bounds``; see the module docstring."""
     lo, hi = grid_box(bounds.scene_lo, bounds.scene_hi)
-    top = build_grid(bounds, lo, hi, kind, geom, resolution_for(hi - lo, density * len(geom)), exact)
+    top = build_grid(bounds, lo, hi, kind, geom,
+                     capped_resolution(bounds, lo, hi, resolution_for(hi - lo, density * len(geom))), exact)
     levels = [_Level(lo[None], top.res[None], top.cell_size[None], top.cell_first.astype(np.int64), top.cell_prims)]
     while len(levels) < max_levels:
         nested = _nested_level(levels[-1], bounds, kind, geom, density, threshold, exact)

@@ -19,7 +19,7 @@ from numba import prange
 from ..._jit import parallel_kernel
 from ..bvh.build_top_down import SAH_BINNED, build_subtree
 from ..bvh.nodes import node_depths
-from ..grid.build_uniform import build_grid, grid_box, resolution_for
+from ..grid.build_uniform import build_grid, capped_resolution, grid_box, resolution_for
 from .layout import GridBvhArrays
 
 __all__ = ["build_grid_bvh"]
@@ -42,7 +42,8 @@ def build_grid_bvh(bounds, kind, geom, density, threshold, max_leaf_size, bins, 
                    exact, pad) -> tuple[GridBvhArrays, int]:
     """Build the hybrid; returns the arrays and the deepest BVH's depth. Node boxes are grown by ``pad``."""
     lo, hi = grid_box(bounds.scene_lo, bounds.scene_hi)
-    grid = build_grid(bounds, lo, hi, kind, geom, resolution_for(hi - lo, density * len(geom)), exact)
+    grid = build_grid(bounds, lo, hi, kind, geom,
+                     capped_resolution(bounds, lo, hi, resolution_for(hi - lo, density * len(geom))), exact)
     counts = np.diff(grid.cell_first)
     dense = np.flatnonzero(counts > threshold)
     sizes = counts[dense].astype(np.int64)

@@ -10,10 +10,13 @@ it lies before ``t0``, and otherwise the near one with ``[t0, t_plane]`` while
 the far one waits on the stack with ``[t_plane, t1]``.
 
 A hit found in a leaf may lie beyond the leaf's cell (the primitive reaches
-into later cells); it is kept as the best candidate, and the walk ends once
-the candidate lies before the current leaf's exit (:func:`settled_before`).
-A ray lying in a split plane (direction component 0, origin on the plane)
-visits both children, since primitives in the plane sit on one side only.
+into later cells); it is kept as the best candidate, and a cell taken from the
+stack is skipped once the candidate lies before its entry
+(:func:`settled_before`). A ray lying in a split plane (direction component
+0, origin on the plane) visits both children over the same interval, since
+primitives in the plane sit on one side only; so the walk does not simply stop
+at the first leaf whose exit lies beyond the best hit, it lets the stack run
+out, which costs one comparison per pending cell.
 Stacks are preallocated per thread, as deep as the tree.
 """
 
@@ -100,8 +103,11 @@ def kdtree_trace_kernel(lo, hi, node_split, node_link, leaf_prims, kind, geom, o
                     best_t, best_prim, best_u, best_v = t, prim, u, v
                     if any_hit:
                         break
-            if (any_hit and best_prim >= 0) or settled_before(best_prim, best_t, t1):
+            if any_hit and best_prim >= 0:
                 break
+            # Once the best hit lies before this leaf's exit, every cell pushed by a plane
+            # crossing starts after it and is skipped below; only a cell pushed for a ray
+            # lying in a split plane (same interval as its sibling) can still be entered.
             node = -1
             while sp > 0:
                 sp -= 1

@@ -1,0 +1,279 @@
+"""kd-tree, octree, hierarchical grid and grid-BVH against the brute-force oracle, and their invariants."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+import rayaccel as ra
+from rayaccel.geometry.overlap import prim_overlaps_box
+from rayaccel.structures.kdtree.layout import LEAF
+
+from conftest import (
+    assert_same_hits,
+    axis_parallel_rays,
+    camera_rays,
+    random_rays,
+    vertex_and_edge_rays,
+)
+
+SPATIAL = ["kdtree", "octree", "hgrid", "grid-bvh"]
+VARIANTS = {
+    "kdtree": [{}, {"leaf_size": 4, "empty_bonus": 0.0, "threads": 1}],
+    "octree": [{}, {"insert": "bbox", "leaf_size": 2}],
+    "hgrid": [{}, {"insert": "exact", "mailbox": False, "threshold": 2}],
+    "grid-bvh": [{}, {"threshold": 1, "mailbox": False, "density": 2.0}],
+}
+CASES = [(m, options) for m in SPATIAL for options in VARIANTS[m]]
+
+
+def test_methods_are_registered():
+    assert set(SPATIAL) <= set(ra.methods())
+
+
+def _check(reference, accel, origins, directions, t_min=0.0, t_max=np.inf):
+    assert_same_hits(reference.intersect(origins, directions, t_min, t_max),
+                     accel.intersect(origins, directions, t_min, t_max))
+    np.testing.assert_array_equal(accel.occluded(origins, directions, t_min, t_max),
+                                  reference.occluded(origins, directions, t_min, t_max))
+
+
+@pytest.mark.parametrize("method,options", CASES)
+@pytest.mark.parametrize("scene_name", ["small_dragon", "spheres"])
+def test_agrees_with_brute_force(scene_name, method, options, request):
+    scene = request.getfixturevalue(scene_name)
+    reference = ra.build(scene, "none")
+    accel = ra.build(scene, method, **options)
+    for origins, directions in (camera_rays(scene, 40), random_rays(scene, 1500), axis_parallel_rays(scene, 600)):
+        _check(reference, accel, origins, directions)
+
+
+@pytest.mark.parametrize("method", SPATIAL)
+def test_bunny_and_rays_through_vertices_edges_and_surfaces(bunny, small_dragon, method):
+    reference = ra.build(bunny, "none")
+    _check(reference, ra.build(bunny, method), *camera_rays(bunny, 32))
+    reference = ra.build(small_dragon, "none")
+    accel = ra.build(small_dragon, method)
+    _check(reference, accel, *vertex_and_edge_rays(small_dragon, 3000))
+    rng = np.random.default_rng(11)
+    faces = rng.integers(0, len(small_dragon), 1000)
+    corners = small_dragon.geometry[faces].reshape(-1, 3, 3)
+    on_surface = np.einsum("nk,nkj->nj", rng.dirichlet([1, 1, 1], 1000), corners)
+    directions = rng.normal(size=(1000, 3))
+    _check(reference, accel, on_surface, directions, 0.0, rng.uniform(0.0, 0.05, 1000))
+
+
+def _kdtree_planes(accel, n, rng):
+    """(axis, position) of ``n`` random split planes of the kd-tree."""
+    inner = np.flatnonzero(accel.kd.axis != LEAF)
+    chosen = rng.choice(inner, n)
+    return accel.kd.axis[chosen], accel.kd.node_split[chosen]
+
+
+def _rays_in_planes(scene, axes, positions, rng):
+    """Rays lying in the given axis-aligned planes (their direction has a zero there)."""
+    n = len(axes)
+    b = scene.bounds()
+    origins = rng.uniform(b.scene_lo - 0.1, b.scene_hi + 0.1, size=(n, 3))
+    origins[np.arange(n), axes] = positions
+    directions = rng.normal(size=(n, 3))
+    directions[np.arange(n), axes] = rng.choice([0.0, -0.0], n)
+    return origins, directions
+
+
+def test_kdtree_rays_along_split_planes_and_through_cell_corners(small_dragon):
+    rng = np.random.default_rng(3)
+    accel = ra.build(small_dragon, "kdtree")
+    reference = ra.build(small_dragon, "none")
+    axes, positions = _kdtree_planes(accel, 2000, rng)
+    _check(reference, accel, *_rays_in_planes(small_dragon, axes, positions, rng))
+    # rays aimed at corners of leaf cells, from outside and from inside other cells
+    cells = accel._cells[np.flatnonzero(accel.kd.axis == LEAF)]
+    corner = rng.integers(0, 2, size=(len(cells), 3)).astype(bool)
+    targets = np.where(corner, cells[:, 3:], cells[:, :3])[rng.choice(len(cells), 2000)]
+    b = small_dragon.bounds()
+    origins = rng.uniform(b.scene_lo, b.scene_hi, size=(2000, 3))
+    _check(reference, accel, origins, targets - origins)
+
+
+def test_octree_and_grids_rays_through_cell_corners_and_planes(small_dragon):
+    rng = np.random.default_rng(4)
+    reference = ra.build(small_dragon, "none")
+    octree = ra.build(small_dragon, "octree")
+    inner = np.flatnonzero(~octree.tree.leaf)
+    centers = octree.tree.node_center[rng.choice(inner, 2000)]
+    b = small_dragon.bounds()
+    origins = rng.uniform(b.scene_lo, b.scene_hi, size=(2000, 3))
+    _check(reference, octree, origins, centers - origins)
+    axes = rng.integers(0, 3, 2000)
+    _check(reference, octree, *_rays_in_planes(small_dragon, axes, centers[np.arange(2000), axes], rng))
+    for method in ("hgrid", "grid-bvh"):
+        accel = ra.build(small_dragon, method)
+        grid_lo = accel.hgrid.grid_lo[0] if method == "hgrid" else accel.hybrid.lo
+        size = accel.hgrid.grid_cell_size[0] if method == "hgrid" else accel.hybrid.cell_size
+        corners = grid_lo + rng.integers(0, 6, size=(2000, 3)) * size
+        _check(reference, accel, origins, corners - origins)
+        _check(reference, accel, *_rays_in_planes(small_dragon, axes, corners[np.arange(2000), axes], rng))
+
+
+def _overlapping_prims(scene, lo, hi):
+    """Primitives that meet the box lo..hi shrunk by a millionth (so touching does not count)."""
+    shrink = 1e-6 * (hi - lo)
+    lo, hi = lo + shrink, hi - shrink
+    b = scene.bounds()
+    candidates = np.flatnonzero(((b.lo <= hi) & (b.hi >= lo)).all(axis=1))
+    center, half = 0.5 * (lo + hi), 0.5 * (hi - lo)
+    return {int(p) for p in candidates if prim_overlaps_box(scene.kind, scene.geometry, int(p), *center, *half)}
+
+
+def test_kdtree_invariants(closed_sphere_mesh):
+    scene = closed_sphere_mesh
+    accel = ra.build(scene, "kdtree")
+    kd = accel.kd
+    leaf = kd.axis == LEAF
+    cells = accel._cells
+    # cells partition the root: leaf volumes add up, children split their parent at the plane
+    volume = np.prod(cells[:, 3:] - cells[:, :3], axis=1)
+    assert volume[leaf].sum() == pytest.approx(volume[0], rel=1e-9)
+    inner = np.flatnonzero(~leaf)
+    below = kd.node_link[inner, 0]
+    assert (below > inner).all()
+    assert np.allclose(cells[below, 3 + kd.axis[inner]], kd.node_split[inner])
+    assert np.allclose(cells[below + 1, kd.axis[inner]], kd.node_split[inner])
+    # every primitive is referenced by every leaf whose interior it overlaps
+    for node in np.flatnonzero(leaf):
+        first, count = kd.node_link[node, 0], kd.count[node]
+        held = set(kd.leaf_prims[first:first + count].tolist())
+        assert _overlapping_prims(scene, cells[node, :3], cells[node, 3:]) <= held
+    stats = accel.stats()
+    assert 1.0 <= stats["avg_prims_per_nonempty_leaf"] <= 8.0
+    assert stats["max_depth"] <= round(8 + 1.3 * np.log2(len(scene)))
+
+
+def test_octree_invariants(closed_sphere_mesh):
+    scene = closed_sphere_mesh
+    accel = ra.build(scene, "octree", leaf_size=4)
+    tree = accel.tree
+    cells = accel.node_cells()
+    leaf = tree.leaf
+    volume = np.prod(cells[:, 3:] - cells[:, :3], axis=1)
+    assert volume[leaf].sum() == pytest.approx(volume[0], rel=1e-9)
+    for node in np.flatnonzero(~leaf):
+        first = tree.node_link[node, 0]
+        assert first > node
+        children = cells[first:first + 8]
+        assert np.allclose(children[:, :3].min(axis=0), cells[node, :3])
+        assert np.allclose(children[:, 3:].max(axis=0), cells[node, 3:])
+    for node in np.flatnonzero(leaf):
+        first, count = tree.node_link[node]
+        held = set(tree.leaf_prims[first:first + count].tolist())
+        assert _overlapping_prims(scene, cells[node, :3], cells[node, 3:]) <= held
+
+
+def test_hgrid_invariants(small_dragon):
+    accel = ra.build(small_dragon, "hgrid")
+    h = accel.hgrid
+    assert h.n_grids > 1
+    parents = np.flatnonzero(h.cell_child >= 0)
+    for cell in parents[:200]:
+        child = h.cell_child[cell]
+        assert h.grid_level[child] >= 1
+        assert h.cell_first[cell + 1] == h.cell_first[cell]  # its primitives moved down
+        # the nested grid covers exactly the parent cell
+        g = np.searchsorted(h.grid_cell_base, cell, side="right") - 1
+        local = cell - h.grid_cell_base[g]
+        r = h.grid_res[g]
+        xyz = np.array([local % r[0], local // r[0] % r[1], local // (r[0] * r[1])])
+        cell_lo = h.grid_lo[g] + xyz * h.grid_cell_size[g]
+        assert np.allclose(h.grid_lo[child], cell_lo)
+        assert np.allclose(h.grid_lo[child] + h.grid_res[child] * h.grid_cell_size[child],
+                           cell_lo + h.grid_cell_size[g])
+    assert accel.stats()["levels"] == h.grid_level.max() + 1
+
+
+def test_grid_bvh_cells_hold_their_references(small_dragon):
+    accel = ra.build(small_dragon, "grid-bvh")
+    h = accel.hybrid
+    grid = ra.build(small_dragon, "grid", density=0.5)
+    assert (grid.grid.cell_first == h.cell_first).all()
+    for cell in np.flatnonzero(h.cell_root >= 0)[:300]:
+        stack, leaves = [h.cell_root[cell]], []
+        while stack:
+            node = stack.pop()
+            if h.node_count[node] > 0:
+                leaves.extend(h.cell_prims[h.node_first[node]:h.node_first[node] + h.node_count[node]])
+            else:
+                stack += [h.node_first[node], h.node_first[node] + 1]
+        expected = grid.grid.cell_prims[grid.grid.cell_first[cell]:grid.grid.cell_first[cell + 1]]
+        assert sorted(leaves) == sorted(expected.tolist())
+
+
+@pytest.mark.parametrize("method", SPATIAL)
+def test_degenerate_scenes(method):
+    one = ra.TriangleMesh([[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 1, 2]])
+    hits = ra.build(one, method).intersect([[0.2, 0.2, 1.0]], [[0, 0, -1.0]])
+    assert hits.prim[0] == 0 and hits.t[0] == pytest.approx(1.0)
+    twins = ra.TriangleMesh([[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 1, 2], [0, 1, 2]])
+    assert ra.build(twins, method).intersect([[0.2, 0.2, 1.0]], [[0, 0, -1.0]]).prim[0] == 0
+    copies = ra.Spheres(np.zeros((20_000, 3)), 1.0)
+    hits = ra.build(copies, method).intersect([[0, 0, -5.0], [0, 5.0, 0]], [[0, 0, 1.0], [0, 0, 1.0]])
+    assert hits.prim.tolist() == [0, -1]
+    flat = ra.TriangleMesh([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]], [[0, 1, 2], [1, 3, 2]])
+    origins = np.array([[0.5, 0.5, 1.0], [0.25, 0.25, -1.0], [0.5, 0.5, 0.0]])
+    directions = np.array([[0, 0, -1.0], [0, 0, 1.0], [1.0, 0, 0]])
+    assert_same_hits(ra.build(flat, "none").intersect(origins, directions),
+                     ra.build(flat, method).intersect(origins, directions))
+
+
+def test_forest_scenes_agree(request):
+    scene = ra.load_scene("forest-small-chair")
+    reference = ra.build(scene, "none")
+    origins, directions = camera_rays(scene, 24)
+    expected = reference.intersect(origins, directions)
+    for method in SPATIAL:
+        assert_same_hits(expected, ra.build(scene, method).intersect(origins, directions))
+
+
+def test_bad_options(small_dragon):
+    with pytest.raises(ValueError, match="leaf_size"):
+        ra.build(small_dragon, "kdtree", leaf_size=0)
+    with pytest.raises(ValueError, match="empty_bonus"):
+        ra.build(small_dragon, "kdtree", empty_bonus=1.5)
+    with pytest.raises(TypeError, match="max_depth"):
+        ra.build(small_dragon, "octree", max_depth=2.5)
+    with pytest.raises(ValueError, match="insert"):
+        ra.build(small_dragon, "octree", insert="center")
+    with pytest.raises(ValueError, match="density"):
+        ra.build(small_dragon, "hgrid", density=-1)
+    with pytest.raises(ValueError, match="threshold"):
+        ra.build(small_dragon, "grid-bvh", threshold=0)
+    with pytest.raises(TypeError):
+        ra.build(small_dragon, "kdtree", bins=4)
+
+
+def test_statistics_are_consistent(small_dragon):
+    origins, directions = camera_rays(small_dragon, 32)
+    for method in SPATIAL:
+        stats = ra.build(small_dragon, method).stats(origins, directions)
+        assert stats["nonempty_leaves"] <= stats["leaves"] <= stats["nodes"]
+        assert stats["references"] >= len(small_dragon) * 0.99
+        assert stats["expected_cost"] > 0 and stats["expected_intersections"] > 0
+        assert stats["avg_nodes_per_ray"] >= 1
+
+
+@settings(max_examples=25, deadline=None)
+@given(n=st.integers(1, 60), seed=st.integers(0, 2**16), method=st.sampled_from(SPATIAL))
+def test_random_triangle_soups_property(n, seed, method):
+    rng = np.random.default_rng(seed)
+    # snapped coordinates make shared vertices, coplanar triangles and axis-aligned edges common
+    vertices = np.round(rng.uniform(0, 1, size=(3 * n, 3)) * 4) / 4
+    scene = ra.TriangleMesh(vertices, np.arange(3 * n).reshape(n, 3))
+    origins, directions = random_rays(scene, 150, seed=seed)
+    snapped = np.round(rng.uniform(-0.5, 1.5, size=(50, 3)) * 4) / 4
+    origins = np.concatenate((origins, snapped))
+    directions = np.concatenate((directions, np.round(rng.normal(size=(50, 3)))))
+    directions[np.abs(directions).sum(axis=1) == 0] = [0.0, 0.0, 1.0]
+    assert_same_hits(ra.build(scene, "none").intersect(origins, directions),
+                     ra.build(scene, method).intersect(origins, directions))
