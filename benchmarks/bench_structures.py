@@ -4,7 +4,8 @@ For each scene and method: build seconds and closest-hit Mrays/s on primary
 (pinhole camera) and incoherent (origins in the scene box, uniform directions)
 rays, any-hit Mrays/s on primary rays, and the ratio of each to Embree's on 2
 threads (embreex queries run on one thread; the 2-thread figure splits the rays
-over two Python threads, as embreex releases the GIL). Brute force is timed on
+over two Python threads, as embreex releases the GIL) and, for closest hit, to
+the best rayaccel BVH in the run. Brute force is timed on
 a subset of the rays. Figures vary by +-30% on a shared machine: read the
 ratios, not the absolutes.
 
@@ -123,7 +124,8 @@ def bench_scene(name: str, methods: list[str], side: int, competitors: set[str],
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--scenes", nargs="+", default=["bunny", "dragon"])
-    parser.add_argument("--methods", nargs="+", default=["grid", "bvh-binned", "bvh-lbvh"])
+    parser.add_argument("--methods", nargs="+",
+                        default=["grid", "hgrid", "grid-bvh", "kdtree", "octree", "bvh-binned", "bvh-lbvh"])
     parser.add_argument("--side", type=int, default=1024, help="primary rays are side x side; as many incoherent")
     args = parser.parse_args()
     console = Console(width=200)
@@ -133,16 +135,18 @@ def main() -> None:
         with console.status(f"benchmarking {name}"):
             rows += bench_scene(name, args.methods, args.side, competitors, console)
     table = Table(title=f"closest hit, Mrays/s ({args.side}x{args.side} primary, as many incoherent); "
-                        "ratio = method / Embree 2 threads")
-    for column in ("scene", "method", "build s", "primary", "incoherent", "any-hit primary", "ratio primary",
-                   "ratio incoherent", "ratio any-hit"):
+                        "ratios to Embree on 2 threads and to the best rayaccel BVH in this run")
+    for column in ("scene", "method", "build s", "primary", "incoherent", "any-hit primary", "/Embree primary",
+                   "/Embree incoherent", "/Embree any-hit", "/best BVH primary", "/best BVH incoherent"):
         table.add_column(column, justify="left" if column in ("scene", "method") else "right")
     for row in rows:
-        reference = next((r for r in rows if r["scene"] == row["scene"] and r["method"] == "Embree (embreex), 2 threads"),
-                         None)
-        ratios = [f"{row[k] / reference[k]:.3f}" if reference else "-" for k in ("primary", "incoherent", "any-hit")]
+        same_scene = [r for r in rows if r["scene"] == row["scene"]]
+        embree = next((r for r in same_scene if r["method"] == "Embree (embreex), 2 threads"), None)
+        bvhs = [r for r in same_scene if r["method"].startswith("rayaccel bvh-")]
+        to_embree = [f"{row[k] / embree[k]:.3f}" if embree else "-" for k in ("primary", "incoherent", "any-hit")]
+        to_bvh = [f"{row[k] / max(r[k] for r in bvhs):.3f}" if bvhs else "-" for k in ("primary", "incoherent")]
         table.add_row(row["scene"], row["method"], f"{row['build']:.3f}", f"{row['primary']:.3g}",
-                      f"{row['incoherent']:.3g}", f"{row['any-hit']:.3g}", *ratios)
+                      f"{row['incoherent']:.3g}", f"{row['any-hit']:.3g}", *to_embree, *to_bvh)
     console.print(table)
 
 
