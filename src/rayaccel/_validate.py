@@ -7,7 +7,7 @@ import numpy as np
 
 from ._jit import kernel
 
-__all__ = ["as_points", "as_index_triples", "as_per_ray", "as_positive_int", "first_zero_row"]
+__all__ = ["as_points", "as_index_triples", "as_per_ray", "as_positive_int", "check_number", "first_zero_row"]
 
 
 @kernel
@@ -99,3 +99,18 @@ def as_positive_int(name: str, value) -> int:
     if value < 1:
         raise ValueError(f"{name} must be at least 1, got {value}")
     return int(value)
+
+
+def check_number(name, value, *, integer=False, minimum=0.0, inclusive=False, maximum=None):
+    """``value`` as a float (or int), or a TypeError/ValueError naming the option."""
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise TypeError(f"{name} must be a number, got {type(value).__name__}")
+    if integer and int(value) != value:
+        raise TypeError(f"{name} must be an integer, got {value!r}")
+    ok = np.isfinite(value) and (value >= minimum if inclusive else value > minimum)
+    if maximum is not None:
+        ok = ok and value <= maximum
+    if not ok:
+        bound = f"at least {minimum}" if inclusive else f"greater than {minimum}"
+        raise ValueError(f"{name} must be {bound}{'' if maximum is None else f' and at most {maximum}'}, got {value!r}")
+    return int(value) if integer else float(value)

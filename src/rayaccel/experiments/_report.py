@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-__all__ = ["markdown_table", "new_figure", "save_figure"]
+__all__ = ["markdown_table", "new_figure", "save_figure", "build_and_render_bars"]
 
 
 def markdown_table(headers: list[str], rows: list[list], align_right_from: int = 1) -> list[str]:
@@ -32,3 +32,18 @@ def save_figure(fig, path: Path) -> Path:
     fig.savefig(path, bbox_inches="tight")
     plt.close(fig)
     return path
+
+
+def build_and_render_bars(labels: list[str], build_seconds: list[float], render_seconds: list[float], title: str,
+                          side: int, path: Path) -> Path:
+    """Two log-scale bar charts side by side: construction time and render time per label."""
+    fig, (left, right) = new_figure(2)
+    positions = list(range(len(labels)))
+    left.bar(positions, build_seconds, color="C0")
+    right.bar(positions, render_seconds, color="C1")
+    left.set(yscale="log", ylabel="seconds", title=f"{title}: construction time")
+    right.set(yscale="log", ylabel="seconds", title=f"{title}: render time, {side}x{side} with shadows")
+    for ax in (left, right):
+        ax.set_xticks(positions, labels, rotation=40, ha="right", fontsize=8)
+        ax.grid(True, axis="y", which="both", alpha=0.3)
+    return save_figure(fig, path)

@@ -19,7 +19,7 @@ from pathlib import Path
 from ..render import default_camera, render
 from ..scene import load_scene
 from ..structures.registry import build
-from ._report import markdown_table, new_figure, save_figure
+from ._report import build_and_render_bars, markdown_table
 
 __all__ = ["DEFAULT_SCENES", "ROWS", "run", "write_report", "warm_up"]
 
@@ -95,14 +95,6 @@ def write_report(columns: list[dict], method: str, out_dir, side: int) -> tuple[
     lines += markdown_table(headers, table, align_right_from=1)
     path = out_dir / f"kdtree-table-{method}.md"
     path.write_text("\n".join(lines) + "\n")
-    fig, (left, right) = new_figure(2)
-    names = [c["scene"] for c in columns]
-    positions = range(len(columns))
-    left.bar(positions, [c["build_seconds"] for c in columns], color="C0")
-    right.bar(positions, [c["render_seconds"] for c in columns], color="C1")
-    left.set(yscale="log", ylabel="seconds", title=f"{method}: construction time")
-    right.set(yscale="log", ylabel="seconds", title=f"{method}: render time, {side}x{side} with shadows")
-    for ax in (left, right):
-        ax.set_xticks(list(positions), names, rotation=40, ha="right", fontsize=8)
-        ax.grid(True, axis="y", which="both", alpha=0.3)
-    return path, save_figure(fig, out_dir / f"kdtree-table-{method}.png")
+    return path, build_and_render_bars([c["scene"] for c in columns], [c["build_seconds"] for c in columns],
+                                       [c["render_seconds"] for c in columns], method, side,
+                                       out_dir / f"kdtree-table-{method}.png")

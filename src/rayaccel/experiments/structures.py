@@ -15,7 +15,7 @@ from pathlib import Path
 from ..render import save_heatmap, save_png
 from ..scene import load_scene
 from ..structures.registry import methods as all_methods
-from ._report import markdown_table, new_figure, save_figure
+from ._report import build_and_render_bars, markdown_table
 from .kdtree_table import measure, warm_up
 
 __all__ = ["run", "write_report"]
@@ -59,14 +59,6 @@ def write_report(rows: list[dict], out_dir, side: int) -> tuple[Path, Path]:
     lines += markdown_table(headers, table, align_right_from=1)
     path = out_dir / f"structures-{scene.replace(':', '-')}.md"
     path.write_text("\n".join(lines) + "\n")
-    fig, (left, right) = new_figure(2)
-    names = [r["method"] for r in rows]
-    positions = range(len(rows))
-    left.bar(positions, [r["build_seconds"] for r in rows], color="C0")
-    right.bar(positions, [r["render_seconds"] for r in rows], color="C1")
-    left.set(yscale="log", ylabel="seconds", title=f"{scene}: construction time")
-    right.set(yscale="log", ylabel="seconds", title=f"{scene}: render time, {side}x{side} with shadows")
-    for ax in (left, right):
-        ax.set_xticks(list(positions), names, rotation=40, ha="right", fontsize=8)
-        ax.grid(True, axis="y", which="both", alpha=0.3)
-    return path, save_figure(fig, out_dir / f"structures-{scene.replace(':', '-')}.png")
+    return path, build_and_render_bars([r["method"] for r in rows], [r["build_seconds"] for r in rows],
+                                       [r["render_seconds"] for r in rows], scene, side,
+                                       out_dir / f"structures-{scene.replace(':', '-')}.png")

@@ -8,6 +8,7 @@ import numba
 import numpy as np
 
 from ..._jit import thread_count
+from ..._validate import check_number
 from ...stats import box_area, surface_area_stats
 from ..base import Accelerator
 from .build_ploc import build_ploc
@@ -26,16 +27,6 @@ _BOUNDS = {"aabb": BOX, "sphere": SPHERE_VOLUME, "kdop": KDOP}
 # included): the slab test's rounding, about 1e-16 of the coordinates, can then
 # never cull a node that a ray only touches, such as one at a vertex it aims at.
 _ROUNDING_PAD = 1e-11
-
-
-def _positive(name, value, kind=float):
-    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
-        raise TypeError(f"{name} must be a number, got {type(value).__name__}")
-    if kind is int and int(value) != value:
-        raise TypeError(f"{name} must be an integer, got {value!r}")
-    if not np.isfinite(value) or value <= 0:
-        raise ValueError(f"{name} must be positive, got {value!r}")
-    return kind(value)
 
 
 class BoundingVolumeHierarchy(Accelerator):
@@ -66,9 +57,9 @@ class BoundingVolumeHierarchy(Accelerator):
     def __init__(self, scene, *, max_leaf_size=None, traversal_cost=3.0, intersection_cost=1.0, bounds="aabb",
                  sphere_fit="primitives", **builder_options):
         max_leaf_size = self.default_leaf_size if max_leaf_size is None else max_leaf_size
-        max_leaf_size = _positive("max_leaf_size", max_leaf_size, int)
-        traversal_cost = _positive("traversal_cost", traversal_cost)
-        intersection_cost = _positive("intersection_cost", intersection_cost)
+        max_leaf_size = check_number("max_leaf_size", max_leaf_size, integer=True)
+        traversal_cost = check_number("traversal_cost", traversal_cost)
+        intersection_cost = check_number("intersection_cost", intersection_cost)
         if bounds not in _BOUNDS:
             raise ValueError(f"bounds must be one of {tuple(_BOUNDS)}, got {bounds!r}")
         if sphere_fit not in ("primitives", "children"):
@@ -162,7 +153,7 @@ class BinnedSah(BoundingVolumeHierarchy):
     default_leaf_size = 8
 
     def __init__(self, scene, *, bins: int = 16, **options):
-        bins = _positive("bins", bins, int)
+        bins = check_number("bins", bins, integer=True)
         if bins < 2:
             raise ValueError(f"bins must be at least 2, got {bins}")
         super().__init__(scene, bins=bins, **options)
@@ -228,7 +219,7 @@ class Agglomerative(BoundingVolumeHierarchy):
     method = "bvh-agglomerative"
 
     def __init__(self, scene, *, radius: int = 16, **options):
-        super().__init__(scene, radius=_positive("radius", radius, int), **options)
+        super().__init__(scene, radius=check_number("radius", radius, integer=True), **options)
 
     def _build(self, pb, max_leaf_size, c_t, c_i, radius):
         codes = morton_codes(pb.centroid)

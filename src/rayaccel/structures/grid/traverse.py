@@ -21,12 +21,12 @@ import math
 import numpy as np
 from numba import prange
 
-from ..._jit import kernel, parallel_kernel, thread_id
+from ..._jit import inline_kernel, kernel, parallel_kernel, thread_id
 from ...geometry.box import clip_to_box
 from ...geometry.primitive import intersect_prim, ray_setup
 from ..base import is_closer, store_hit
 
-__all__ = ["axis_start", "grid_trace_kernel"]
+__all__ = ["axis_start", "dda_step", "test_cell", "grid_trace_kernel"]
 
 
 @kernel
@@ -41,6 +41,48 @@ def axis_start(o, d, t_enter, lo, size, n):
     return c, 0, np.inf, np.inf
 
 
+@inline_kernel
+def dda_step(cx, cy, cz, next_x, next_y, next_z, step_x, step_y, step_z, delta_x, delta_y, delta_z, res):
+    """Step into the neighbouring cell across the nearest cell boundary; returns the new cell,
+    the next boundary crossings and whether the new cell is still inside the grid."""
+    cell_exit = min(next_x, next_y, next_z)
+    if next_x == cell_exit:
+        cx += step_x
+        next_x += delta_x
+        inside = 0 <= cx < res[0]
+    elif next_y == cell_exit:
+        cy += step_y
+        next_y += delta_y
+        inside = 0 <= cy < res[1]
+    else:
+        cz += step_z
+        next_z += delta_z
+        inside = 0 <= cz < res[2]
+    return cx, cy, cz, next_x, next_y, next_z, inside
+
+
+@inline_kernel
+def test_cell(first, end, cell_prims, mailbox, tid, stamp, kind, geom, ray, t_min, best_t, best_prim, best_u,
+              best_v, n_tests, n_skips, any_hit):
+    """Test the references ``cell_prims[first:end]``, skipping primitives already stamped in the
+    mailbox (when there is one) and stamping the others; returns the best hit ``(t, prim, u,
+    v)`` and the counters ``(tests, skips)``, updated."""
+    for k in range(first, end):
+        prim = cell_prims[k]
+        if mailbox.shape[0] > 0:
+            if mailbox[tid, prim] == stamp:
+                n_skips += 1
+                continue
+            mailbox[tid, prim] = stamp
+        n_tests += 1
+        t, u, v = intersect_prim(kind, geom, prim, ray, t_min, best_t)
+        if is_closer(t, prim, best_t, best_prim):
+            best_t, best_prim, best_u, best_v = t, prim, u, v
+            if any_hit:
+                break
+    return best_t, best_prim, best_u, best_v, n_tests, n_skips
+
+
 @parallel_kernel
 def grid_trace_kernel(grid_lo, grid_hi, res, cell_size, cell_first, cell_prims, kind, geom,
                       origins, directions, t_min, t_max, any_hit, mailbox, ray_id_base,
@@ -52,7 +94,7 @@ def grid_trace_kernel(grid_lo, grid_hi, res, cell_size, cell_first, cell_prims, 
     calls without clearing as long as each call gets a fresh range of ids.
     """
     use_mailbox = mailbox.shape[0] > 0
-    nx, ny, nz = res[0], res[1], res[2]
+    nx, ny = res[0], res[1]
     count_work = work.shape[0] > 0
     for i in prange(origins.shape[0]):
         ox, oy, oz = origins[i, 0], origins[i, 1], origins[i, 2]
@@ -76,39 +118,18 @@ def grid_trace_kernel(grid_lo, grid_hi, res, cell_size, cell_first, cell_prims, 
         while True:
             n_cells += 1
             flat = cx + nx * (cy + ny * cz)
-            for k in range(cell_first[flat], cell_first[flat + 1]):
-                prim = cell_prims[k]
-                if use_mailbox:
-                    if mailbox[tid, prim] == stamp:
-                        n_skips += 1
-                        continue
-                    mailbox[tid, prim] = stamp
-                n_tests += 1
-                t, u, v = intersect_prim(kind, geom, prim, ray, t_min[i], best_t)
-                if is_closer(t, prim, best_t, best_prim):
-                    best_t, best_prim, best_u, best_v = t, prim, u, v
-                    if any_hit:
-                        break
+            best_t, best_prim, best_u, best_v, n_tests, n_skips = test_cell(
+                cell_first[flat], cell_first[flat + 1], cell_prims, mailbox, tid, stamp, kind, geom, ray, t_min[i],
+                best_t, best_prim, best_u, best_v, n_tests, n_skips, any_hit)
             if any_hit and best_prim >= 0:
                 break
             cell_exit = min(next_x, next_y, next_z)
             if (best_prim >= 0 and best_t <= cell_exit) or cell_exit > t_exit:
                 break
-            if next_x == cell_exit:
-                cx += step_x
-                if cx < 0 or cx >= nx:
-                    break
-                next_x += delta_x
-            elif next_y == cell_exit:
-                cy += step_y
-                if cy < 0 or cy >= ny:
-                    break
-                next_y += delta_y
-            else:
-                cz += step_z
-                if cz < 0 or cz >= nz:
-                    break
-                next_z += delta_z
+            cx, cy, cz, next_x, next_y, next_z, inside = dda_step(cx, cy, cz, next_x, next_y, next_z, step_x, step_y,
+                                                                  step_z, delta_x, delta_y, delta_z, res)
+            if not inside:
+                break
         store_hit(i, best_t, best_prim, best_u, best_v, out_t, out_prim, out_u, out_v)
         if count_work:
             work[i, 0] = n_cells

@@ -7,10 +7,10 @@ import time
 import numba
 import numpy as np
 
+from ..._validate import check_number
 from ...stats import box_area, surface_area_stats
 from ..base import Accelerator
 from ..grid.mailbox import MailboxPool
-from ..kdtree.accelerator import check_number
 from .build_nested import build_hierarchical_grid
 from .traverse import hgrid_trace_kernel
 

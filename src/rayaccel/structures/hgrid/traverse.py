@@ -17,9 +17,9 @@ from numba import prange
 
 from ..._jit import parallel_kernel, thread_id
 from ...geometry.box import clip_to_box
-from ...geometry.primitive import intersect_prim, ray_setup
-from ..base import is_closer, store_hit
-from ..grid.traverse import axis_start
+from ...geometry.primitive import ray_setup
+from ..base import store_hit
+from ..grid.traverse import axis_start, dda_step, test_cell
 
 __all__ = ["hgrid_trace_kernel"]
 
@@ -30,7 +30,6 @@ def hgrid_trace_kernel(lo, hi, grid_lo, grid_res, grid_cell_size, grid_cell_base
                        saved_float, out_t, out_prim, out_u, out_v, work):
     """Trace every ray; ``saved_int`` (threads, levels, 7) int64 and ``saved_float``
     (threads, levels, 7) hold the outer walks' DDA states; ``mailbox`` as in the uniform grid."""
-    use_mailbox = mailbox.shape[0] > 0
     count_work = work.shape[0] > 0
     for i in prange(origins.shape[0]):
         ox, oy, oz = origins[i, 0], origins[i, 1], origins[i, 2]
@@ -84,19 +83,9 @@ def hgrid_trace_kernel(lo, hi, grid_lo, grid_res, grid_cell_size, grid_cell_base
                 cz, step_z, next_z, delta_z = axis_start(oz, dz, t_cell, grid_lo[g, 2], grid_cell_size[g, 2],
                                                          grid_res[g, 2])
                 continue
-            for k in range(cell_first[cell], cell_first[cell + 1]):
-                prim = cell_prims[k]
-                if use_mailbox:
-                    if mailbox[tid, prim] == stamp:
-                        n_skips += 1
-                        continue
-                    mailbox[tid, prim] = stamp
-                n_tests += 1
-                t, u, v = intersect_prim(kind, geom, prim, ray, t_min[i], best_t)
-                if is_closer(t, prim, best_t, best_prim):
-                    best_t, best_prim, best_u, best_v = t, prim, u, v
-                    if any_hit:
-                        break
+            best_t, best_prim, best_u, best_v, n_tests, n_skips = test_cell(
+                cell_first[cell], cell_first[cell + 1], cell_prims, mailbox, tid, stamp, kind, geom, ray, t_min[i],
+                best_t, best_prim, best_u, best_v, n_tests, n_skips, any_hit)
             if (any_hit and best_prim >= 0) or (best_prim >= 0 and best_t <= cell_exit):
                 break
             done = False
@@ -104,18 +93,9 @@ def hgrid_trace_kernel(lo, hi, grid_lo, grid_res, grid_cell_size, grid_cell_base
                 cell_exit = min(next_x, next_y, next_z)
                 moved = cell_exit <= stretch_end
                 if moved:
-                    if next_x == cell_exit:
-                        cx += step_x
-                        moved = 0 <= cx < grid_res[g, 0]
-                        next_x += delta_x
-                    elif next_y == cell_exit:
-                        cy += step_y
-                        moved = 0 <= cy < grid_res[g, 1]
-                        next_y += delta_y
-                    else:
-                        cz += step_z
-                        moved = 0 <= cz < grid_res[g, 2]
-                        next_z += delta_z
+                    cx, cy, cz, next_x, next_y, next_z, moved = dda_step(cx, cy, cz, next_x, next_y, next_z, step_x,
+                                                                         step_y, step_z, delta_x, delta_y, delta_z,
+                                                                         grid_res[g])
                 if moved:
                     t_cell = cell_exit
                     break

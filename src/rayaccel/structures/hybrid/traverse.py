@@ -14,35 +14,14 @@ from __future__ import annotations
 import numpy as np
 from numba import prange
 
-from ..._jit import inline_kernel, parallel_kernel, thread_id
+from ..._jit import parallel_kernel, thread_id
 from ...geometry.box import clip_to_box
-from ...geometry.primitive import intersect_prim, ray_setup
-from ..base import EXIT_MARGIN, is_closer, store_hit
+from ...geometry.primitive import ray_setup
+from ..base import EXIT_MARGIN, store_hit
 from ..bvh.traverse import enter_box
-from ..grid.traverse import axis_start
+from ..grid.traverse import axis_start, dda_step, test_cell
 
 __all__ = ["grid_bvh_trace_kernel"]
-
-
-@inline_kernel
-def _test_refs(first, end, cell_prims, mailbox, tid, stamp, kind, geom, ray, t_min, best_t, best_prim, best_u,
-               best_v, n_tests, n_skips, any_hit):
-    """Test references ``first:end``, skipping those already stamped; returns the best hit
-    and the counters, updated."""
-    for k in range(first, end):
-        prim = cell_prims[k]
-        if mailbox.shape[0] > 0:
-            if mailbox[tid, prim] == stamp:
-                n_skips += 1
-                continue
-            mailbox[tid, prim] = stamp
-        n_tests += 1
-        t, u, v = intersect_prim(kind, geom, prim, ray, t_min, best_t)
-        if is_closer(t, prim, best_t, best_prim):
-            best_t, best_prim, best_u, best_v = t, prim, u, v
-            if any_hit:
-                break
-    return best_t, best_prim, best_u, best_v, n_tests, n_skips
 
 
 @parallel_kernel
@@ -82,7 +61,7 @@ def grid_bvh_trace_kernel(lo, hi, res, cell_size, cell_first, cell_prims, cell_r
             span_hi = cell_exit + EXIT_MARGIN * abs(cell_exit)
             root = cell_root[cell]
             if root < 0:
-                best_t, best_prim, best_u, best_v, n_tests, n_skips = _test_refs(
+                best_t, best_prim, best_u, best_v, n_tests, n_skips = test_cell(
                     cell_first[cell], cell_first[cell + 1], cell_prims, mailbox, tid, stamp, kind, geom, ray,
                     ray_t_min, best_t, best_prim, best_u, best_v, n_tests, n_skips, any_hit)
             else:
@@ -96,7 +75,7 @@ def grid_bvh_trace_kernel(lo, hi, res, cell_size, cell_first, cell_prims, cell_r
                     count = node_count[node]
                     if count > 0:
                         first = node_first[node]
-                        best_t, best_prim, best_u, best_v, n_tests, n_skips = _test_refs(
+                        best_t, best_prim, best_u, best_v, n_tests, n_skips = test_cell(
                             first, first + count, cell_prims, mailbox, tid, stamp, kind, geom, ray, ray_t_min,
                             best_t, best_prim, best_u, best_v, n_tests, n_skips, any_hit)
                         if any_hit and best_prim >= 0:
@@ -124,21 +103,10 @@ def grid_bvh_trace_kernel(lo, hi, res, cell_size, cell_first, cell_prims, cell_r
                 break
             if cell_exit > t_exit:
                 break
-            if next_x == cell_exit:
-                cx += step_x
-                if cx < 0 or cx >= nx:
-                    break
-                next_x += delta_x
-            elif next_y == cell_exit:
-                cy += step_y
-                if cy < 0 or cy >= ny:
-                    break
-                next_y += delta_y
-            else:
-                cz += step_z
-                if cz < 0 or cz >= nz:
-                    break
-                next_z += delta_z
+            cx, cy, cz, next_x, next_y, next_z, inside = dda_step(cx, cy, cz, next_x, next_y, next_z, step_x, step_y,
+                                                                  step_z, delta_x, delta_y, delta_z, res)
+            if not inside:
+                break
             t_cell = cell_exit
         store_hit(i, best_t, best_prim, best_u, best_v, out_t, out_prim, out_u, out_v)
         if count_work:

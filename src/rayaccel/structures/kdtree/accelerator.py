@@ -10,31 +10,18 @@ import numba
 import numpy as np
 
 from ..._jit import thread_count
+from ..._validate import check_number
 from ...stats import box_area, surface_area_stats
 from ..base import Accelerator
 from ..grid.build_uniform import grid_box
-from .build_sah_events import build_subtree, root_events
+from .build_sah_events import build_subtree
+from .events import root_events
 from .layout import LEAF, KdTreeArrays, node_cells
 from .traverse import kdtree_trace_kernel
 
-__all__ = ["KdTree", "check_number"]
+__all__ = ["KdTree"]
 
 _MAX_PRIMS = 1 << 28  # leaf counts are stored as count << 2 in an int32
-
-
-def check_number(name, value, *, integer=False, minimum=0.0, inclusive=False, maximum=None):
-    """``value`` as a float (or int), or a TypeError/ValueError naming the option."""
-    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
-        raise TypeError(f"{name} must be a number, got {type(value).__name__}")
-    if integer and int(value) != value:
-        raise TypeError(f"{name} must be an integer, got {value!r}")
-    ok = np.isfinite(value) and (value >= minimum if inclusive else value > minimum)
-    if maximum is not None:
-        ok = ok and value <= maximum
-    if not ok:
-        bound = f"at least {minimum}" if inclusive else f"greater than {minimum}"
-        raise ValueError(f"{name} must be {bound}{'' if maximum is None else f' and at most {maximum}'}, got {value!r}")
-    return int(value) if integer else float(value)
 
 
 class KdTree(Accelerator):

@@ -9,7 +9,7 @@ are sorted once, by position and then type (end < planar < start), and stay
 sorted: a node sweeps them to find its best plane, then hands them to its
 children by filtering, so no node ever sorts more than the few events of the
 primitives that the plane cuts. Events live in one arena used like a stack (see
-:func:`build_subtree`): no memory is allocated per node.
+:func:`build_subtree`), so no node allocates event arrays of its own.
 
 * **Sweep** (per axis): crossing the events in order keeps the counts left of,
   on, and right of the candidate plane, which gives the cost of every plane in
@@ -40,62 +40,17 @@ from numba.typed import List
 
 from ..._jit import kernel
 from ...geometry.clip import CLIP_VERTICES, clipped_bounds
+from ..build_arrays import reserve_rows
+from .events import END, PLANAR, START, event_before, sort_events
 from .layout import LEAF
 
-__all__ = ["END", "PLANAR", "START", "root_events", "build_subtree", "order_ties"]
-
-END = 0
-PLANAR = 1
-START = 2
+__all__ = ["build_subtree"]
 
 _NOT_A_PLANE = 1e300  # cost added to events that are not candidate planes
 
 _BOTH = 0
 _LEFT = 1
 _RIGHT = 2
-
-
-@kernel
-def order_ties(pos, code, scratch):
-    """Reorder runs of equal positions by event type (end, planar, start) in linear time;
-    ``pos`` must already be sorted. ``scratch`` is an int64 array at least as long."""
-    n = pos.shape[0]
-    i = 0
-    while i < n:
-        j = i + 1
-        while j < n and pos[j] == pos[i]:
-            j += 1
-        if j - i > 1:
-            m = 0
-            for kind in (END, PLANAR, START):
-                for k in range(i, j):
-                    if code[k] & 3 == kind:
-                        scratch[m] = code[k]
-                        m += 1
-            code[i:j] = scratch[:j - i]
-        i = j
-
-
-def root_events(lo: np.ndarray, hi: np.ndarray, executor=None):
-    """The sorted events of all primitives, axis by axis: ``(pos, code, span)`` with
-    ``code = prim << 2 | type`` and axis ``a``'s events at ``span[a, 0]:span[a, 1]``.
-    The three axes sort concurrently when ``executor`` is given."""
-    prims = np.arange(len(lo), dtype=np.int64)
-
-    def one_axis(axis):
-        flat = lo[:, axis] == hi[:, axis]
-        solid = ~flat
-        pos = np.concatenate((hi[solid, axis], lo[flat, axis], lo[solid, axis]))
-        code = np.concatenate((prims[solid] << 2 | END, prims[flat] << 2 | PLANAR, prims[solid] << 2 | START))
-        order = np.argsort(pos)
-        pos, code = pos[order], code[order]
-        order_ties(pos, code, np.empty(len(code), dtype=np.int64))
-        return pos, code
-
-    per_axis = list(executor.map(one_axis, range(3)) if executor else map(one_axis, range(3)))
-    lengths = np.array([len(p) for p, _ in per_axis], dtype=np.int64)
-    span = np.stack((np.cumsum(lengths) - lengths, np.cumsum(lengths)), axis=1)
-    return np.concatenate([p for p, _ in per_axis]), np.concatenate([c for _, c in per_axis]), span
 
 
 @kernel
@@ -183,34 +138,6 @@ def _classify(pos, code, first, last, p, planar_left, flags):
 
 
 @kernel
-def _event_before(pos_a, code_a, pos_b, code_b):
-    return pos_a < pos_b or (pos_a == pos_b and code_a & 3 < code_b & 3)
-
-
-@kernel
-def _sort_events(pos, code, n):
-    """Sort ``pos[:n]``, ``code[:n]`` in place by position, then type."""
-    if n <= 32:
-        for k in range(1, n):
-            p = pos[k]
-            c = code[k]
-            j = k
-            while j > 0 and _event_before(p, c, pos[j - 1], code[j - 1]):
-                pos[j] = pos[j - 1]
-                code[j] = code[j - 1]
-                j -= 1
-            pos[j] = p
-            code[j] = c
-        return
-    order = np.argsort(pos[:n])
-    sorted_pos = pos[:n][order]
-    sorted_code = code[:n][order]
-    pos[:n] = sorted_pos
-    code[:n] = sorted_code
-    order_ties(pos[:n], code[:n], np.empty(n, dtype=np.int64))
-
-
-@kernel
 def _clip_straddling(pos, code, first, last, flags, cell, kind, geom, slack, poly, box, new_pos, new_code, fill):
     """Events of the straddling primitives (found among the split axis's events
     ``first:last``) clipped to ``cell``: rows ``new_pos[axis, :fill[axis]]`` (and
@@ -235,7 +162,7 @@ def _clip_straddling(pos, code, first, last, flags, cell, kind, geom, slack, pol
                 new_code[b, f + 1] = prim << 2 | END
                 fill[b] = f + 2
     for b in range(3):
-        _sort_events(new_pos[b], new_code[b], fill[b])
+        sort_events(new_pos[b], new_code[b], fill[b])
 
 
 @kernel
@@ -259,7 +186,7 @@ def _distribute(pos, code, span, flags, new_pos, new_code, fill, child_span):
             if side == _BOTH:
                 continue
             s = side - 1
-            while j[s] < fill[s, b] and _event_before(new_pos[s, b, j[s]], new_code[s, b, j[s]], pos[i], code[i]):
+            while j[s] < fill[s, b] and event_before(new_pos[s, b, j[s]], new_code[s, b, j[s]], pos[i], code[i]):
                 pos[o[s]] = new_pos[s, b, j[s]]
                 code[o[s]] = new_code[s, b, j[s]]
                 o[s] += 1
@@ -278,16 +205,6 @@ def _distribute(pos, code, span, flags, new_pos, new_code, fill, child_span):
                 for k in range(child_span[s, 0, 0], o[s]):
                     n_prims[s] += code[k] & 3 != END
     return n_prims[0], n_prims[1]
-
-
-@kernel
-def _reserve(a, rows):
-    """``a`` itself if it has at least ``rows`` rows, else a copy grown to at least twice its size."""
-    if rows <= a.shape[0]:
-        return a
-    grown = np.empty((max(rows, 2 * a.shape[0]),) + a.shape[1:], dtype=a.dtype)
-    grown[:a.shape[0]] = a
-    return grown
 
 
 @kernel
@@ -360,7 +277,7 @@ def build_subtree(pos, code, span, n_prims, cell, depth, kind, geom, n_scene_pri
             if best_axis >= 0 and best_cost >= intersection_cost * n:
                 best_axis = -1
             if best_axis < 0:
-                leaf_prims = _reserve(leaf_prims, n_refs + n)
+                leaf_prims = reserve_rows(leaf_prims, n_refs + n)
                 node_link[node, 0] = n_refs
                 node_link[node, 1] = n << 2 | LEAF
                 for i in range(span[0, 0], span[0, 1]):
@@ -386,13 +303,13 @@ def build_subtree(pos, code, span, n_prims, cell, depth, kind, geom, n_scene_pri
                 for b in range(3):
                     child_span[side, b, 0] = slot
                     slot += span[b, 1] - span[b, 0] + fill[side, b]
-            arena_pos = _reserve(arena_pos, slot)
-            arena_code = _reserve(arena_code, slot)
+            arena_pos = reserve_rows(arena_pos, slot)
+            arena_code = reserve_rows(arena_code, slot)
             n_left, n_right = _distribute(arena_pos, arena_code, span, flags, new_pos, new_code, fill, child_span)
             child = n_nodes
             n_nodes += 2
-            node_split = _reserve(node_split, n_nodes)
-            node_link = _reserve(node_link, n_nodes)
+            node_split = reserve_rows(node_split, n_nodes)
+            node_link = reserve_rows(node_link, n_nodes)
             node_split[node] = best_pos
             node_link[node, 0] = child
             node_link[node, 1] = axis

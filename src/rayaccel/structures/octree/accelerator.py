@@ -8,10 +8,10 @@ import time
 import numba
 import numpy as np
 
+from ..._validate import check_number
 from ...stats import box_area, surface_area_stats
 from ..base import Accelerator
 from ..grid.build_uniform import grid_box
-from ..kdtree.accelerator import check_number
 from .build_adaptive import build_octree
 from .layout import OctreeArrays
 from .traverse import octree_trace_kernel

@@ -25,6 +25,7 @@ from numba import prange
 
 from ..._jit import kernel, parallel_kernel
 from ...geometry.overlap import prim_overlaps_box
+from ..build_arrays import reserve_rows
 
 __all__ = ["build_octree"]
 
@@ -74,15 +75,6 @@ def _split_level(refs, ref_first, centers, halves, split, prim_lo, prim_hi, kind
 
 
 @kernel
-def _grow(a, rows):
-    if rows <= a.shape[0]:
-        return a
-    grown = np.empty((max(rows, 2 * a.shape[0]),) + a.shape[1:], dtype=a.dtype)
-    grown[:a.shape[0]] = a
-    return grown
-
-
-@kernel
 def build_octree(prim_lo, prim_hi, kind, geom, exact, lo, hi, leaf_size, max_depth, pad_fraction):
     """Build over all primitives in the root cell ``lo``..``hi``. Returns
     ``(node_center, node_link, leaf_prims, depth)``; see :mod:`.layout`."""
@@ -121,8 +113,8 @@ def build_octree(prim_lo, prim_hi, kind, geom, exact, lo, hi, leaf_size, max_dep
                 split[r] = (separated and counts[r].sum() <= 4 * count) or nonempty == 1
             n_split += split[r]
         child_base = n_nodes
-        node_center = _grow(node_center, n_nodes + 8 * n_split)
-        node_link = _grow(node_link, n_nodes + 8 * n_split)
+        node_center = reserve_rows(node_center, n_nodes + 8 * n_split)
+        node_link = reserve_rows(node_link, n_nodes + 8 * n_split)
         next_first = np.zeros(8 * n_split + 1, dtype=np.int64)
         cursor = np.zeros((m, 8), dtype=np.int64)
         next_rows = np.empty(8 * n_split, dtype=np.int64)
@@ -133,7 +125,7 @@ def build_octree(prim_lo, prim_hi, kind, geom, exact, lo, hi, leaf_size, max_dep
             node = rows[r]
             count = ref_first[r + 1] - ref_first[r]
             if not split[r]:
-                leaf_prims = _grow(leaf_prims, n_refs + count)
+                leaf_prims = reserve_rows(leaf_prims, n_refs + count)
                 leaf_prims[n_refs:n_refs + count] = refs[ref_first[r]:ref_first[r + 1]]
                 node_link[node, 0] = n_refs
                 node_link[node, 1] = count
