@@ -21,7 +21,7 @@ from conftest import (
 
 SPATIAL = ["kdtree", "octree", "hgrid", "grid-bvh"]
 VARIANTS = {
-    "kdtree": [{}, {"leaf_size": 4, "empty_bonus": 0.0, "threads": 1}],
+    "kdtree": [{}, {"leaf_size": 1, "empty_bonus": 0.0, "threads": 1}],
     "octree": [{}, {"insert": "bbox", "leaf_size": 2}],
     "hgrid": [{}, {"insert": "exact", "mailbox": False, "threshold": 2}],
     "grid-bvh": [{}, {"threshold": 1, "mailbox": False, "density": 2.0}],
@@ -90,7 +90,7 @@ def test_kdtree_rays_along_split_planes_and_through_cell_corners(small_dragon):
     axes, positions = _kdtree_planes(accel, 2000, rng)
     _check(reference, accel, *_rays_in_planes(small_dragon, axes, positions, rng))
     # rays aimed at corners of leaf cells, from outside and from inside other cells
-    cells = accel._cells[np.flatnonzero(accel.kd.axis == LEAF)]
+    cells = accel.node_cells()[np.flatnonzero(accel.kd.axis == LEAF)]
     corner = rng.integers(0, 2, size=(len(cells), 3)).astype(bool)
     targets = np.where(corner, cells[:, 3:], cells[:, :3])[rng.choice(len(cells), 2000)]
     b = small_dragon.bounds()
@@ -133,7 +133,7 @@ def test_kdtree_invariants(closed_sphere_mesh):
     accel = ra.build(scene, "kdtree")
     kd = accel.kd
     leaf = kd.axis == LEAF
-    cells = accel._cells
+    cells = accel.node_cells()
     # cells partition the root: leaf volumes add up, children split their parent at the plane
     volume = np.prod(cells[:, 3:] - cells[:, :3], axis=1)
     assert volume[leaf].sum() == pytest.approx(volume[0], rel=1e-9)

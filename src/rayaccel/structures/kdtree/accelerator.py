@@ -29,25 +29,31 @@ class KdTree(Accelerator):
 
     Parameters
     ----------
-    traversal_cost, intersection_cost : float, default 1 and 1.5
-        ``C_t`` and ``C_i`` of the cost model ``C_t + C_i (S_L N_L + S_R N_R) / S``.
-        A larger ``C_i / C_t`` splits deeper: fewer tests per ray, more nodes.
+    traversal_cost, intersection_cost : float, default 1 and 1.33
+        ``C_t`` and ``C_i`` of the cost model ``C_t + C_i (S_L N_L + S_R N_R) / S``,
+        in the proportion of Wald & Havran's K_T = 15, K_I = 20. A larger
+        ``C_i / C_t`` splits deeper: fewer tests per ray, more nodes.
     empty_bonus : float in [0, 1), default 0.2
         Discount on the cost of a split with one empty side (Wald & Havran's
         lambda = 0.8); larger values cut off more empty space.
-    leaf_size : int, default 1
+    leaf_size : int, default 4
         Nodes with at most this many primitives become leaves without trying
         a split; the SAH makes larger leaves where splitting does not pay.
+        Measured (``rayaccel experiment leaf-size``): against 1, leaf size 4
+        builds the bunny in 0.81 s instead of 1.40 s and the 203k dragon in
+        2.6 s instead of 3.1 s, with primary rays as fast or 3-5 % faster.
     max_depth : int, optional
         Depth limit; default ``round(8 + 1.3 log2 n)`` (pbrt's rule).
     threads : int, optional
-        Subtrees are built on this many threads (default: the parallel
-        kernels' thread count).
+        Build threads (default: the parallel kernels' thread count). The top
+        of the tree is built on one thread down to nodes of fewer than
+        ``n / (4 threads)`` primitives; those subtrees are then built
+        concurrently (the builder releases the GIL) and stitched together.
     """
 
     method = "kdtree"
 
-    def __init__(self, scene, *, traversal_cost=1.0, intersection_cost=1.33, empty_bonus=0.2, leaf_size=1,
+    def __init__(self, scene, *, traversal_cost=1.0, intersection_cost=1.33, empty_bonus=0.2, leaf_size=4,
                  max_depth=None, threads=None):
         n = len(scene)
         if n > _MAX_PRIMS:
@@ -103,6 +109,10 @@ class KdTree(Accelerator):
         if n_nodes >= np.iinfo(np.int32).max or n_refs >= np.iinfo(np.int32).max:
             raise ValueError("the kd-tree outgrew int32 indices; raise leaf_size or lower max_depth")
         return KdTreeArrays(lo, hi, np.concatenate(splits), np.concatenate(links), np.concatenate(leaves))
+
+    def node_cells(self) -> np.ndarray:
+        """(n_nodes, 6) cell of every node, lo and hi."""
+        return self._cells
 
     def _trace(self, batch, any_hit, t, prim, u, v, work):
         k = self.kd
