@@ -118,9 +118,9 @@ def _best_plane(pos, code, first, last, axis, cell, n, traversal_cost, intersect
 
 
 @kernel
-def _classify(pos, code, first, last, p, planar_left, flags):
+def _classify(pos, code, first, last, p, planar_left, flags, straddling):
     """Mark each primitive of the node left only, right only, or both (straddling the plane);
-    return how many straddle."""
+    list the straddling ones in ``straddling`` and return how many there are."""
     for i in range(first, last):
         flags[code[i] >> 2] = _BOTH
     n_straddling = 0
@@ -133,20 +133,19 @@ def _classify(pos, code, first, last, p, planar_left, flags):
         right = ((kind == START) & (x >= p)) | (planar & ~left)
         flags[prim] = _LEFT if left else (_RIGHT if right else flags[prim])
     for i in range(first, last):
-        n_straddling += (code[i] & 3 == START) & (flags[code[i] >> 2] == _BOTH)
+        if code[i] & 3 == START and flags[code[i] >> 2] == _BOTH:
+            straddling[n_straddling] = code[i] >> 2
+            n_straddling += 1
     return n_straddling
 
 
 @kernel
-def _clip_straddling(pos, code, first, last, flags, cell, kind, geom, slack, poly, box, new_pos, new_code, fill):
-    """Events of the straddling primitives (found among the split axis's events
-    ``first:last``) clipped to ``cell``: rows ``new_pos[axis, :fill[axis]]`` (and
-    ``new_code``) per axis, each sorted."""
+def _clip_straddling(straddling, n_straddling, cell, kind, geom, slack, poly, box, new_pos, new_code, fill):
+    """Events of the straddling primitives ``straddling[:n_straddling]`` clipped to ``cell``:
+    rows ``new_pos[axis, :fill[axis]]`` (and ``new_code``) per axis, each sorted."""
     fill[:] = 0
-    for i in range(first, last):
-        if code[i] & 3 != START or flags[code[i] >> 2] != _BOTH:
-            continue
-        prim = code[i] >> 2
+    for k in range(n_straddling):
+        prim = straddling[k]
         if not clipped_bounds(kind, geom, prim, cell, slack, poly, box):
             continue
         for b in range(3):
@@ -242,6 +241,7 @@ def build_subtree(pos, code, span, n_prims, cell, depth, kind, geom, n_scene_pri
     poly = np.empty((2, CLIP_VERTICES, 3))
     box = np.empty(6)
     fill = np.empty((2, 3), dtype=np.int64)
+    straddling = np.empty(64, dtype=np.int64)
     new_pos = np.empty((2, 3, 64))
     new_code = np.empty((2, 3, 64), dtype=np.int64)
     child_span = np.empty((2, 3, 2), dtype=np.int64)
@@ -287,7 +287,9 @@ def build_subtree(pos, code, span, n_prims, cell, depth, kind, geom, n_scene_pri
         if best_axis >= 0:
             axis = best_axis
             first, last = span[axis, 0], span[axis, 1]
-            n_straddling = _classify(arena_pos, arena_code, first, last, best_pos, best_planar_left, flags)
+            straddling = reserve_rows(straddling, last - first)
+            n_straddling = _classify(arena_pos, arena_code, first, last, best_pos, best_planar_left, flags,
+                                     straddling)
             if new_pos.shape[2] < 2 * n_straddling:
                 new_pos = np.empty((2, 3, 4 * n_straddling))
                 new_code = np.empty((2, 3, 4 * n_straddling), dtype=np.int64)
@@ -296,8 +298,8 @@ def build_subtree(pos, code, span, n_prims, cell, depth, kind, geom, n_scene_pri
             child_cell[0, axis + 3] = best_pos
             child_cell[1, axis] = best_pos
             for side in range(2):
-                _clip_straddling(arena_pos, arena_code, first, last, flags, child_cell[side], kind, geom, slack,
-                                 poly, box, new_pos[side], new_code[side], fill[side])
+                _clip_straddling(straddling, n_straddling, child_cell[side], kind, geom, slack, poly, box,
+                                 new_pos[side], new_code[side], fill[side])
             slot = top
             for side in range(2):
                 for b in range(3):

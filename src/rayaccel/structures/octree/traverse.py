@@ -72,7 +72,7 @@ def octree_trace_kernel(lo, hi, node_center, node_link, leaf_prims, kind, geom, 
                 tz = _crossing(oz, dz, iz, cz)
                 octant = (_entry_bit(ox, dx, tx, t0, cx) | (_entry_bit(oy, dy, ty, t0, cy) << 1)
                           | (_entry_bit(oz, dz, tz, t0, cz) << 2))
-                # the crossings inside (t0, t1), in order: at most three, sorted by hand
+                # the three plane crossings in order, sorted by hand
                 c0, c1, c2 = tx, ty, tz
                 b0, b1, b2 = 1, 2, 4
                 if c1 < c0:
