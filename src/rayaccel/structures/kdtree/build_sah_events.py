@@ -165,6 +165,54 @@ def _clip_straddling(straddling, n_straddling, cell, kind, geom, slack, poly, bo
 
 
 @kernel
+def _distribute_axis(pos, code, span, flags, new_pos, new_code, fill, child_span, b):
+    """Axis ``b`` of :func:`_distribute`."""
+    j0 = 0
+    j1 = 0
+    o0 = child_span[0, b, 0]
+    o1 = child_span[1, b, 0]
+    for i in range(span[b, 0], span[b, 1]):
+        side = flags[code[i] >> 2]
+        if side == _LEFT:
+            while j0 < fill[0, b] and event_before(new_pos[0, b, j0], new_code[0, b, j0], pos[i], code[i]):
+                pos[o0] = new_pos[0, b, j0]
+                code[o0] = new_code[0, b, j0]
+                o0 += 1
+                j0 += 1
+            pos[o0] = pos[i]
+            code[o0] = code[i]
+            o0 += 1
+        elif side == _RIGHT:
+            while j1 < fill[1, b] and event_before(new_pos[1, b, j1], new_code[1, b, j1], pos[i], code[i]):
+                pos[o1] = new_pos[1, b, j1]
+                code[o1] = new_code[1, b, j1]
+                o1 += 1
+                j1 += 1
+            pos[o1] = pos[i]
+            code[o1] = code[i]
+            o1 += 1
+    for j in range(j0, fill[0, b]):
+        pos[o0] = new_pos[0, b, j]
+        code[o0] = new_code[0, b, j]
+        o0 += 1
+    for j in range(j1, fill[1, b]):
+        pos[o1] = new_pos[1, b, j]
+        code[o1] = new_code[1, b, j]
+        o1 += 1
+    child_span[0, b, 1] = o0
+    child_span[1, b, 1] = o1
+
+
+@kernel
+def _child_prims(code, child_span, side):
+    """Primitives of a child: its axis-0 events that are not ends."""
+    n = 0
+    for k in range(child_span[side, 0, 0], child_span[side, 0, 1]):
+        n += code[k] & 3 != END
+    return n
+
+
+@kernel
 def _distribute(pos, code, span, flags, new_pos, new_code, fill, child_span):
     """One pass over the parent's events: each goes to the left child, the right child or
     (straddling) neither, merged on the way with the clipped events of its side.
@@ -173,37 +221,9 @@ def _distribute(pos, code, span, flags, new_pos, new_code, fill, child_span):
     start (room for every parent event of the axis plus the clipped ones) and leaves
     holding their (first, end). Returns the two children's primitive counts.
     """
-    n_prims = np.zeros(2, dtype=np.int64)
-    j = np.empty(2, dtype=np.int64)
-    o = np.empty(2, dtype=np.int64)
     for b in range(3):
-        j[:] = 0
-        o[0] = child_span[0, b, 0]
-        o[1] = child_span[1, b, 0]
-        for i in range(span[b, 0], span[b, 1]):
-            side = flags[code[i] >> 2]
-            if side == _BOTH:
-                continue
-            s = side - 1
-            while j[s] < fill[s, b] and event_before(new_pos[s, b, j[s]], new_code[s, b, j[s]], pos[i], code[i]):
-                pos[o[s]] = new_pos[s, b, j[s]]
-                code[o[s]] = new_code[s, b, j[s]]
-                o[s] += 1
-                j[s] += 1
-            pos[o[s]] = pos[i]
-            code[o[s]] = code[i]
-            o[s] += 1
-        for s in range(2):
-            while j[s] < fill[s, b]:
-                pos[o[s]] = new_pos[s, b, j[s]]
-                code[o[s]] = new_code[s, b, j[s]]
-                o[s] += 1
-                j[s] += 1
-            child_span[s, b, 1] = o[s]
-            if b == 0:
-                for k in range(child_span[s, 0, 0], o[s]):
-                    n_prims[s] += code[k] & 3 != END
-    return n_prims[0], n_prims[1]
+        _distribute_axis(pos, code, span, flags, new_pos, new_code, fill, child_span, b)
+    return _child_prims(code, child_span, 0), _child_prims(code, child_span, 1)
 
 
 @kernel
