@@ -227,7 +227,7 @@ def test_degenerate_scenes(method):
                      ra.build(flat, method).intersect(origins, directions))
 
 
-def test_forest_scenes_agree(request):
+def test_forest_scenes_agree():
     scene = ra.load_scene("forest-small-chair")
     reference = ra.build(scene, "none")
     origins, directions = camera_rays(scene, 24)
