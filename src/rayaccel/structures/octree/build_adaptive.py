@@ -42,13 +42,15 @@ def _visit_octants(prim, prim_lo, prim_hi, kind, geom, exact, center, half, pad,
     below_x, above_x = _octant_span(prim_lo[prim, 0], prim_hi[prim, 0], center[0], pad[0])
     below_y, above_y = _octant_span(prim_lo[prim, 1], prim_hi[prim, 1], center[1], pad[1])
     below_z, above_z = _octant_span(prim_lo[prim, 2], prim_hi[prim, 2], center[2], pad[2])
+    # a box inside one octant certainly meets it: only a primitive spanning several needs the test
+    test = exact and ((below_x and above_x) or (below_y and above_y) or (below_z and above_z))
     for octant in range(8):
         bx = octant & 1
         by = (octant >> 1) & 1
         bz = (octant >> 2) & 1
         if not ((above_x if bx else below_x) and (above_y if by else below_y) and (above_z if bz else below_z)):
             continue
-        if exact:
+        if test:
             cx = center[0] + (0.5 if bx else -0.5) * half[0]
             cy = center[1] + (0.5 if by else -0.5) * half[1]
             cz = center[2] + (0.5 if bz else -0.5) * half[2]
