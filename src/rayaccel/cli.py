@@ -244,7 +244,8 @@ def _cmd_methods(args) -> None:
     from .structures.registry import build_class, methods
 
     for method in methods():
-        print(f"{method:12s} {(build_class(method).__doc__ or '').strip().splitlines()[0]}")
+        summary = " ".join((build_class(method).__doc__ or "").strip().split("\n\n")[0].split())
+        print(f"{method:18s} {summary}")
     print("scenes: " + ", ".join(builtin_scenes()) + ", or a mesh file (OBJ, PLY, STL, OFF, optionally .gz)")
 
 
