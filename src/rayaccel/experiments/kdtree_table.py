@@ -54,10 +54,11 @@ def warm_up(methods) -> None:
         render(build(mesh, method), default_camera(mesh), 8, 8)
 
 
-def measure(name: str, scene, method: str, side: int, options: dict | None = None) -> dict:
-    """Statistics of ``method`` on one scene, with the render time of a ``side`` x ``side`` frame."""
+def measure(name: str, scene, method: str, side: int) -> tuple[dict, object]:
+    """Statistics of ``method`` on one scene, with the render time of a ``side`` x ``side`` frame;
+    returns them and the rendered frame."""
     start = time.perf_counter()
-    accel = build(scene, method, **(options or {}))
+    accel = build(scene, method)
     build_seconds = time.perf_counter() - start
     camera = default_camera(scene)
     stats = accel.stats(*camera.rays(side, side))
@@ -65,9 +66,7 @@ def measure(name: str, scene, method: str, side: int, options: dict | None = Non
     result = render(accel, camera, side, side)
     stats["render_seconds"] = result.trace_seconds
     stats["scene"] = name
-    stats["accel"] = accel
-    stats["result"] = result
-    return stats
+    return stats, result
 
 
 def run(scenes=DEFAULT_SCENES, method: str = "kdtree", side: int = 512, progress=None) -> list[dict]:
@@ -75,9 +74,7 @@ def run(scenes=DEFAULT_SCENES, method: str = "kdtree", side: int = 512, progress
     warm_up([method])
     columns = []
     for s, name in enumerate(scenes):
-        stats = measure(name, load_scene(name), method, side)
-        del stats["accel"], stats["result"]
-        columns.append(stats)
+        columns.append(measure(name, load_scene(name), method, side)[0])
         if progress is not None:
             progress(s + 1, len(scenes))
     return columns

@@ -29,9 +29,7 @@ def run(scene_name: str = "forest-small-chair", methods=None, side: int = 512, o
     scene = load_scene(scene_name)
     rows = []
     for k, method in enumerate(methods):
-        stats = measure(scene_name, scene, method, side)
-        result = stats.pop("result")
-        stats.pop("accel")
+        stats, result = measure(scene_name, scene, method, side)
         if out_dir is not None:
             stem = Path(out_dir) / f"structures-{scene_name.replace(':', '-')}-{method}"
             save_png(result.image, stem.with_suffix(".png"))

@@ -5,10 +5,11 @@ from __future__ import annotations
 import numpy as np
 
 from .._jit import inline_kernel
+from ..geometry.primitive import intersect_prim
 from ..rays import Camera, Hits, RayCounters, prepare_rays
 from ..scene import SPHERE, Spheres, TriangleMesh
 
-__all__ = ["Accelerator", "is_closer", "store_hit", "settled_before", "EXIT_MARGIN"]
+__all__ = ["Accelerator", "is_closer", "intersect_references", "store_hit", "settled_before", "EXIT_MARGIN"]
 
 # Relative margin by which a hit must lie before a cell's exit for the walk to stop there.
 EXIT_MARGIN = 1e-9
@@ -22,6 +23,29 @@ def is_closer(t, prim, best_t, best_prim):
     if t == np.inf:
         return False
     return best_prim < 0 or t < best_t or (t == best_t and prim < best_prim)
+
+
+@inline_kernel
+def intersect_references(first, end, refs, mailbox, tid, stamp, kind, geom, ray, t_min, best_t, best_prim, best_u,
+                         best_v, n_tests, n_skips, any_hit):
+    """Test the primitives ``refs[first:end]`` (a cell's or a leaf's references) against the ray,
+    skipping those already stamped in the mailbox, when there is one (an empty array
+    otherwise), and stamping the others; returns the best hit ``(t, prim, u, v)`` and the
+    counters ``(tests, skips)``, updated."""
+    for k in range(first, end):
+        prim = refs[k]
+        if mailbox.shape[0] > 0:
+            if mailbox[tid, prim] == stamp:
+                n_skips += 1
+                continue
+            mailbox[tid, prim] = stamp
+        n_tests += 1
+        t, u, v = intersect_prim(kind, geom, prim, ray, t_min, best_t)
+        if is_closer(t, prim, best_t, best_prim):
+            best_t, best_prim, best_u, best_v = t, prim, u, v
+            if any_hit:
+                break
+    return best_t, best_prim, best_u, best_v, n_tests, n_skips
 
 
 @inline_kernel

@@ -28,12 +28,12 @@ import numpy as np
 
 from numba import prange
 
-from ..._jit import kernel, parallel_kernel, thread_count
+from ..._jit import inline_kernel, kernel, parallel_kernel, thread_count
 from ...geometry.overlap import prim_overlaps_box
 from .layout import GridArrays
 
-__all__ = ["MAX_CELLS", "CELL_PAD", "REFERENCE_BUDGET", "grid_box", "resolution_for", "cell_span",
-           "count_references", "capped_resolution", "build_grid"]
+__all__ = ["MAX_CELLS", "CELL_PAD", "REFERENCE_BUDGET", "grid_box", "resolution_for", "cell_span", "prim_cells",
+           "insert_prim", "count_references", "capped_resolution", "build_grid", "build_density_grid"]
 
 MAX_CELLS = 1 << 27
 REFERENCE_BUDGET = 64  # a resolution chosen for the user stores at most this many references per primitive
@@ -91,42 +91,57 @@ def _z_slabs(prim_lo, prim_hi, grid_lo, cell_size, res, slab_depth, n_slabs):
     return slab_first, slab_prims
 
 
-@parallel_kernel
-def _insert(prim_lo, prim_hi, kind, geom, exact, grid_lo, cell_size, res, slab_depth, slab_first, slab_prims,
-            row_end, cell_prims, fill):
-    """Visit every (primitive, cell) pair that overlaps: count it in ``row_end``, or with
-    ``fill`` write it just before ``row_end`` of its cell and move that end down.
+@inline_kernel
+def prim_cells(prim_lo, prim_hi, prim, grid_lo, cell_size, res):
+    """The cell ranges ``x0, x1, y0, y1, z0, z1`` (inclusive) that primitive ``prim``'s box reaches."""
+    x0, x1 = cell_span(prim_lo[prim, 0], prim_hi[prim, 0], grid_lo, cell_size, res, 0)
+    y0, y1 = cell_span(prim_lo[prim, 1], prim_hi[prim, 1], grid_lo, cell_size, res, 1)
+    z0, z1 = cell_span(prim_lo[prim, 2], prim_hi[prim, 2], grid_lo, cell_size, res, 2)
+    return x0, x1, y0, y1, z0, z1
 
-    Slabs of cell layers run in parallel; each writes only to its own cells.
-    """
+
+@inline_kernel
+def insert_prim(prim, kind, geom, test, grid_lo, cell_size, res, x0, x1, y0, y1, z0, z1, cell_base, row_end,
+                cell_prims, fill):
+    """Visit the cells ``x0..x1, y0..y1, z0..z1`` of a grid whose cells are numbered from
+    ``cell_base``, skipping (with ``test``) those that primitive ``prim`` does not really meet:
+    count the primitive in each cell's ``row_end`` or, with ``fill``, write it just before that
+    end and move the end down (the two passes of a counting sort)."""
     nx, ny = res[0], res[1]
     hx = 0.5 * cell_size[0] * (1.0 + 2.0 * CELL_PAD)
     hy = 0.5 * cell_size[1] * (1.0 + 2.0 * CELL_PAD)
     hz = 0.5 * cell_size[2] * (1.0 + 2.0 * CELL_PAD)
+    for z in range(z0, z1 + 1):
+        for y in range(y0, y1 + 1):
+            for x in range(x0, x1 + 1):
+                if test:
+                    cx = grid_lo[0] + (x + 0.5) * cell_size[0]
+                    cy = grid_lo[1] + (y + 0.5) * cell_size[1]
+                    cz = grid_lo[2] + (z + 0.5) * cell_size[2]
+                    if not prim_overlaps_box(kind, geom, prim, cx, cy, cz, hx, hy, hz):
+                        continue
+                cell = cell_base + x + nx * (y + ny * z)
+                if fill:
+                    row_end[cell] -= 1
+                    cell_prims[row_end[cell]] = prim
+                else:
+                    row_end[cell] += 1
+
+
+@parallel_kernel
+def _insert(prim_lo, prim_hi, kind, geom, exact, grid_lo, cell_size, res, slab_depth, slab_first, slab_prims,
+            row_end, cell_prims, fill):
+    """Insert every primitive into the cells it overlaps with :func:`insert_prim` (``fill`` selects
+    the pass). Slabs of cell layers run in parallel; each writes only to its own cells."""
     for slab in prange(slab_first.shape[0] - 1):
         slab_z0 = slab * slab_depth
         slab_z1 = slab_z0 + slab_depth - 1
         for k in range(slab_first[slab], slab_first[slab + 1]):
             prim = slab_prims[k]
-            x0, x1 = cell_span(prim_lo[prim, 0], prim_hi[prim, 0], grid_lo, cell_size, res, 0)
-            y0, y1 = cell_span(prim_lo[prim, 1], prim_hi[prim, 1], grid_lo, cell_size, res, 1)
-            z0, z1 = cell_span(prim_lo[prim, 2], prim_hi[prim, 2], grid_lo, cell_size, res, 2)
+            x0, x1, y0, y1, z0, z1 = prim_cells(prim_lo, prim_hi, prim, grid_lo, cell_size, res)
             test = exact and (x1 > x0 or y1 > y0 or z1 > z0)
-            for z in range(max(z0, slab_z0), min(z1, slab_z1) + 1):
-                for y in range(y0, y1 + 1):
-                    for x in range(x0, x1 + 1):
-                        if test:
-                            cx = grid_lo[0] + (x + 0.5) * cell_size[0]
-                            cy = grid_lo[1] + (y + 0.5) * cell_size[1]
-                            cz = grid_lo[2] + (z + 0.5) * cell_size[2]
-                            if not prim_overlaps_box(kind, geom, prim, cx, cy, cz, hx, hy, hz):
-                                continue
-                        cell = x + nx * (y + ny * z)
-                        if fill:
-                            row_end[cell] -= 1
-                            cell_prims[row_end[cell]] = prim
-                        else:
-                            row_end[cell] += 1
+            insert_prim(prim, kind, geom, test, grid_lo, cell_size, res, x0, x1, y0, y1, max(z0, slab_z0),
+                        min(z1, slab_z1), 0, row_end, cell_prims, fill)
 
 
 @parallel_kernel
@@ -135,9 +150,7 @@ def count_references(prim_lo, prim_hi, grid_lo, cell_size, res):
     exact insertion)."""
     total = 0
     for prim in prange(prim_lo.shape[0]):
-        x0, x1 = cell_span(prim_lo[prim, 0], prim_hi[prim, 0], grid_lo, cell_size, res, 0)
-        y0, y1 = cell_span(prim_lo[prim, 1], prim_hi[prim, 1], grid_lo, cell_size, res, 1)
-        z0, z1 = cell_span(prim_lo[prim, 2], prim_hi[prim, 2], grid_lo, cell_size, res, 2)
+        x0, x1, y0, y1, z0, z1 = prim_cells(prim_lo, prim_hi, prim, grid_lo, cell_size, res)
         total += (x1 - x0 + 1) * (y1 - y0 + 1) * (z1 - z0 + 1)
     return total
 
@@ -179,3 +192,11 @@ def build_grid(bounds, lo: np.ndarray, hi: np.ndarray, kind: int, geom: np.ndarr
     cell_first[:-1] = cell_first[1:].copy()
     cell_first[-1] = n_references
     return GridArrays(lo, hi, res, cell_size, cell_first, cell_prims)
+
+
+def build_density_grid(bounds, kind: int, geom: np.ndarray, density: float, exact: bool) -> GridArrays:
+    """A grid over the padded scene box with about ``density * n`` cells, made coarser by
+    :func:`capped_resolution` where needed."""
+    lo, hi = grid_box(bounds.scene_lo, bounds.scene_hi)
+    res = capped_resolution(bounds, lo, hi, resolution_for(hi - lo, density * len(geom)))
+    return build_grid(bounds, lo, hi, kind, geom, res, exact)

@@ -23,10 +23,10 @@ from numba import prange
 
 from ..._jit import inline_kernel, kernel, parallel_kernel, thread_id
 from ...geometry.box import clip_to_box
-from ...geometry.primitive import intersect_prim, ray_setup
-from ..base import is_closer, store_hit
+from ...geometry.primitive import ray_setup
+from ..base import intersect_references, store_hit
 
-__all__ = ["axis_start", "dda_step", "test_cell", "grid_trace_kernel"]
+__all__ = ["axis_start", "dda_step", "grid_trace_kernel"]
 
 
 @kernel
@@ -59,28 +59,6 @@ def dda_step(cx, cy, cz, next_x, next_y, next_z, step_x, step_y, step_z, delta_x
         next_z += delta_z
         inside = 0 <= cz < res[2]
     return cx, cy, cz, next_x, next_y, next_z, inside
-
-
-@inline_kernel
-def test_cell(first, end, cell_prims, mailbox, tid, stamp, kind, geom, ray, t_min, best_t, best_prim, best_u,
-              best_v, n_tests, n_skips, any_hit):
-    """Test the references ``cell_prims[first:end]``, skipping primitives already stamped in the
-    mailbox (when there is one) and stamping the others; returns the best hit ``(t, prim, u,
-    v)`` and the counters ``(tests, skips)``, updated."""
-    for k in range(first, end):
-        prim = cell_prims[k]
-        if mailbox.shape[0] > 0:
-            if mailbox[tid, prim] == stamp:
-                n_skips += 1
-                continue
-            mailbox[tid, prim] = stamp
-        n_tests += 1
-        t, u, v = intersect_prim(kind, geom, prim, ray, t_min, best_t)
-        if is_closer(t, prim, best_t, best_prim):
-            best_t, best_prim, best_u, best_v = t, prim, u, v
-            if any_hit:
-                break
-    return best_t, best_prim, best_u, best_v, n_tests, n_skips
 
 
 @parallel_kernel
@@ -118,7 +96,7 @@ def grid_trace_kernel(grid_lo, grid_hi, res, cell_size, cell_first, cell_prims, 
         while True:
             n_cells += 1
             flat = cx + nx * (cy + ny * cz)
-            best_t, best_prim, best_u, best_v, n_tests, n_skips = test_cell(
+            best_t, best_prim, best_u, best_v, n_tests, n_skips = intersect_references(
                 cell_first[flat], cell_first[flat + 1], cell_prims, mailbox, tid, stamp, kind, geom, ray, t_min[i],
                 best_t, best_prim, best_u, best_v, n_tests, n_skips, any_hit)
             if any_hit and best_prim >= 0:

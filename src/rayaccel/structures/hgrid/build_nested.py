@@ -8,9 +8,10 @@ cells (:mod:`..grid.build_uniform`). Every cell holding more than
 ``density * m`` cells for its ``m`` primitives, and the primitives move down
 into it -- unless that grid would not separate them (its cells would hold
 more than half of them on average) or would store more than
-``REFERENCE_BUDGET`` references per primitive; the same happens to the new grids' dense cells, down to ``max_levels``
-levels. All nested grids of a level are filled at once, in parallel over the
-grids, with the counting-sort insertion of the uniform grid.
+``REFERENCE_BUDGET`` references per primitive. The same happens to the new
+grids' dense cells, down to ``max_levels`` levels. All nested grids of a level
+are filled at once, in parallel over the grids, with the counting-sort
+insertion of the uniform grid.
 """
 
 from __future__ import annotations
@@ -19,9 +20,7 @@ import numpy as np
 from numba import prange
 
 from ..._jit import parallel_kernel
-from ...geometry.overlap import prim_overlaps_box
-from ..grid.build_uniform import (CELL_PAD, MAX_CELLS, REFERENCE_BUDGET, build_grid, capped_resolution, cell_span,
-                                  grid_box, resolution_for)
+from ..grid.build_uniform import MAX_CELLS, REFERENCE_BUDGET, build_density_grid, insert_prim, prim_cells
 from .layout import HierarchicalGridArrays
 
 __all__ = ["build_hierarchical_grid"]
@@ -30,47 +29,26 @@ __all__ = ["build_hierarchical_grid"]
 @parallel_kernel
 def _insert_nested(prim_lo, prim_hi, kind, geom, exact, parent_first, parent_prims, grid_lo, cell_size, res,
                    cell_base, row_end, cell_prims, fill):
-    """Visit every (primitive, cell) overlap of every nested grid ``d``, whose primitives are
-    ``parent_prims[parent_first[d]:parent_first[d + 1]]``: count it in ``row_end`` or, with
-    ``fill``, write it just before its cell's ``row_end`` and move that end down."""
+    """Insert the primitives of every nested grid ``d``, ``parent_prims[parent_first[d]:parent_first[d + 1]]``,
+    into its cells with :func:`insert_prim` (``fill`` selects the pass), grids in parallel."""
     for d in prange(grid_lo.shape[0]):
-        nx, ny = res[d, 0], res[d, 1]
-        hx = 0.5 * cell_size[d, 0] * (1.0 + 2.0 * CELL_PAD)
-        hy = 0.5 * cell_size[d, 1] * (1.0 + 2.0 * CELL_PAD)
-        hz = 0.5 * cell_size[d, 2] * (1.0 + 2.0 * CELL_PAD)
+        lo, size, r = grid_lo[d], cell_size[d], res[d]
         for k in range(parent_first[d], parent_first[d + 1]):
             prim = parent_prims[k]
-            x0, x1 = cell_span(prim_lo[prim, 0], prim_hi[prim, 0], grid_lo[d], cell_size[d], res[d], 0)
-            y0, y1 = cell_span(prim_lo[prim, 1], prim_hi[prim, 1], grid_lo[d], cell_size[d], res[d], 1)
-            z0, z1 = cell_span(prim_lo[prim, 2], prim_hi[prim, 2], grid_lo[d], cell_size[d], res[d], 2)
+            x0, x1, y0, y1, z0, z1 = prim_cells(prim_lo, prim_hi, prim, lo, size, r)
             test = exact and (x1 > x0 or y1 > y0 or z1 > z0)
-            for z in range(z0, z1 + 1):
-                for y in range(y0, y1 + 1):
-                    for x in range(x0, x1 + 1):
-                        if test:
-                            cx = grid_lo[d, 0] + (x + 0.5) * cell_size[d, 0]
-                            cy = grid_lo[d, 1] + (y + 0.5) * cell_size[d, 1]
-                            cz = grid_lo[d, 2] + (z + 0.5) * cell_size[d, 2]
-                            if not prim_overlaps_box(kind, geom, prim, cx, cy, cz, hx, hy, hz):
-                                continue
-                        cell = cell_base[d] + x + nx * (y + ny * z)
-                        if fill:
-                            row_end[cell] -= 1
-                            cell_prims[row_end[cell]] = prim
-                        else:
-                            row_end[cell] += 1
+            insert_prim(prim, kind, geom, test, lo, size, r, x0, x1, y0, y1, z0, z1, cell_base[d], row_end, cell_prims,
+                        fill)
 
 
 @parallel_kernel
 def _count_nested(prim_lo, prim_hi, parent_first, parent_prims, grid_lo, cell_size, res, counts):
     """References each nested grid ``d`` would store with bounding-box insertion."""
     for d in prange(grid_lo.shape[0]):
+        lo, size, r = grid_lo[d], cell_size[d], res[d]
         total = 0
         for k in range(parent_first[d], parent_first[d + 1]):
-            prim = parent_prims[k]
-            x0, x1 = cell_span(prim_lo[prim, 0], prim_hi[prim, 0], grid_lo[d], cell_size[d], res[d], 0)
-            y0, y1 = cell_span(prim_lo[prim, 1], prim_hi[prim, 1], grid_lo[d], cell_size[d], res[d], 1)
-            z0, z1 = cell_span(prim_lo[prim, 2], prim_hi[prim, 2], grid_lo[d], cell_size[d], res[d], 2)
+            x0, x1, y0, y1, z0, z1 = prim_cells(prim_lo, prim_hi, parent_prims[k], lo, size, r)
             total += (x1 - x0 + 1) * (y1 - y0 + 1) * (z1 - z0 + 1)
         counts[d] = total
 
@@ -106,7 +84,8 @@ class _Level:
 
 
 def _nested_level(level, bounds, kind, geom, density, threshold, exact):
-    """The grids nested in ``level``'s cells with more than ``threshold`` references, or None."""
+    """The grids nested in ``level``'s cells with more than ``threshold`` references, and
+    those cells; None where no cell gets one."""
     dense = np.flatnonzero(np.diff(level.first) > threshold)
     if len(dense) == 0:
         return None
@@ -139,20 +118,19 @@ def _nested_level(level, bounds, kind, geom, density, threshold, exact):
     row_end[:-1] = row_end[1:].copy()
     row_end[-1] = len(prims)
     nested.first, nested.prims = row_end, prims
-    level.dense = dense
-    return nested
+    return nested, dense
 
 
 def build_hierarchical_grid(bounds, kind, geom, density, threshold, max_levels, exact) -> HierarchicalGridArrays:
     """Build the hierarchical grid over a scene's primitive ``bounds``; see the module docstring."""
-    lo, hi = grid_box(bounds.scene_lo, bounds.scene_hi)
-    top = build_grid(bounds, lo, hi, kind, geom,
-                     capped_resolution(bounds, lo, hi, resolution_for(hi - lo, density * len(geom))), exact)
+    top = build_density_grid(bounds, kind, geom, density, exact)
+    lo, hi = top.lo, top.hi
     levels = [_Level(lo[None], top.res[None], top.cell_size[None], top.cell_first.astype(np.int64), top.cell_prims)]
     while len(levels) < max_levels:
-        nested = _nested_level(levels[-1], bounds, kind, geom, density, threshold, exact)
-        if nested is None:
+        found = _nested_level(levels[-1], bounds, kind, geom, density, threshold, exact)
+        if found is None:
             break
+        nested, levels[-1].dense = found
         levels.append(nested)
     cell_offset = 0
     grid_offset = 0

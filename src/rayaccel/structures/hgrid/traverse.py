@@ -18,8 +18,8 @@ from numba import prange
 from ..._jit import parallel_kernel, thread_id
 from ...geometry.box import clip_to_box
 from ...geometry.primitive import ray_setup
-from ..base import store_hit
-from ..grid.traverse import axis_start, dda_step, test_cell
+from ..base import intersect_references, store_hit
+from ..grid.traverse import axis_start, dda_step
 
 __all__ = ["hgrid_trace_kernel"]
 
@@ -83,7 +83,7 @@ def hgrid_trace_kernel(lo, hi, grid_lo, grid_res, grid_cell_size, grid_cell_base
                 cz, step_z, next_z, delta_z = axis_start(oz, dz, t_cell, grid_lo[g, 2], grid_cell_size[g, 2],
                                                          grid_res[g, 2])
                 continue
-            best_t, best_prim, best_u, best_v, n_tests, n_skips = test_cell(
+            best_t, best_prim, best_u, best_v, n_tests, n_skips = intersect_references(
                 cell_first[cell], cell_first[cell + 1], cell_prims, mailbox, tid, stamp, kind, geom, ray, t_min[i],
                 best_t, best_prim, best_u, best_v, n_tests, n_skips, any_hit)
             if (any_hit and best_prim >= 0) or (best_prim >= 0 and best_t <= cell_exit):

@@ -19,7 +19,7 @@ from numba import prange
 from ..._jit import parallel_kernel
 from ..bvh.build_top_down import SAH_BINNED, build_subtree
 from ..bvh.nodes import node_depths
-from ..grid.build_uniform import build_grid, capped_resolution, grid_box, resolution_for
+from ..grid.build_uniform import build_density_grid
 from .layout import GridBvhArrays
 
 __all__ = ["build_grid_bvh"]
@@ -41,9 +41,7 @@ def _build_cell_bvhs(lo, hi, centroid, order, row_first, row_end, cell_root, max
 def build_grid_bvh(bounds, kind, geom, density, threshold, max_leaf_size, bins, traversal_cost, intersection_cost,
                    exact, pad) -> tuple[GridBvhArrays, int]:
     """Build the hybrid; returns the arrays and the deepest BVH's depth. Node boxes are grown by ``pad``."""
-    lo, hi = grid_box(bounds.scene_lo, bounds.scene_hi)
-    grid = build_grid(bounds, lo, hi, kind, geom,
-                     capped_resolution(bounds, lo, hi, resolution_for(hi - lo, density * len(geom))), exact)
+    grid = build_density_grid(bounds, kind, geom, density, exact)
     counts = np.diff(grid.cell_first)
     dense = np.flatnonzero(counts > threshold)
     sizes = counts[dense].astype(np.int64)
@@ -65,6 +63,6 @@ def build_grid_bvh(bounds, kind, geom, density, threshold, max_leaf_size, bins, 
         node_box[:, :3] -= pad
         node_box[:, 3:] += pad
         depth = int(node_depths(node_first, node_count).max())
-    arrays = GridBvhArrays(lo, hi, grid.res, grid.cell_size, grid.cell_first, order.astype(np.int32), cell_root,
+    arrays = GridBvhArrays(grid.lo, grid.hi, grid.res, grid.cell_size, grid.cell_first, order.astype(np.int32), cell_root,
                            node_box, node_first, node_count)
     return arrays, depth

@@ -17,9 +17,9 @@ from numba import prange
 from ..._jit import parallel_kernel, thread_id
 from ...geometry.box import clip_to_box
 from ...geometry.primitive import ray_setup
-from ..base import EXIT_MARGIN, store_hit
+from ..base import EXIT_MARGIN, intersect_references, store_hit
 from ..bvh.traverse import enter_box
-from ..grid.traverse import axis_start, dda_step, test_cell
+from ..grid.traverse import axis_start, dda_step
 
 __all__ = ["grid_bvh_trace_kernel"]
 
@@ -61,7 +61,7 @@ def grid_bvh_trace_kernel(lo, hi, res, cell_size, cell_first, cell_prims, cell_r
             span_hi = cell_exit + EXIT_MARGIN * abs(cell_exit)
             root = cell_root[cell]
             if root < 0:
-                best_t, best_prim, best_u, best_v, n_tests, n_skips = test_cell(
+                best_t, best_prim, best_u, best_v, n_tests, n_skips = intersect_references(
                     cell_first[cell], cell_first[cell + 1], cell_prims, mailbox, tid, stamp, kind, geom, ray,
                     ray_t_min, best_t, best_prim, best_u, best_v, n_tests, n_skips, any_hit)
             else:
@@ -75,7 +75,7 @@ def grid_bvh_trace_kernel(lo, hi, res, cell_size, cell_first, cell_prims, cell_r
                     count = node_count[node]
                     if count > 0:
                         first = node_first[node]
-                        best_t, best_prim, best_u, best_v, n_tests, n_skips = test_cell(
+                        best_t, best_prim, best_u, best_v, n_tests, n_skips = intersect_references(
                             first, first + count, cell_prims, mailbox, tid, stamp, kind, geom, ray, ray_t_min,
                             best_t, best_prim, best_u, best_v, n_tests, n_skips, any_hit)
                         if any_hit and best_prim >= 0:

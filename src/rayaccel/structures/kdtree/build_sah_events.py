@@ -38,7 +38,7 @@ from __future__ import annotations
 import numpy as np
 from numba.typed import List
 
-from ..._jit import kernel
+from ..._jit import inline_kernel, kernel
 from ...geometry.clip import CLIP_VERTICES, clipped_bounds
 from ..build_arrays import reserve_rows
 from .events import END, PLANAR, START, event_before, sort_events
@@ -164,43 +164,41 @@ def _clip_straddling(straddling, n_straddling, cell, kind, geom, slack, poly, bo
         sort_events(new_pos[b], new_code[b], fill[b])
 
 
+@inline_kernel
+def _merge_clipped(pos, code, new_pos, new_code, side, b, until, j, end, o):
+    """Copy the clipped events ``new_*[side, b, j:end]`` that sort before ``until`` (an index
+    into ``pos``/``code``; all of them when it is -1) to ``pos``/``code`` from ``o`` on;
+    returns the two cursors."""
+    while j < end and (until < 0 or event_before(new_pos[side, b, j], new_code[side, b, j], pos[until], code[until])):
+        pos[o] = new_pos[side, b, j]
+        code[o] = new_code[side, b, j]
+        o += 1
+        j += 1
+    return j, o
+
+
+@inline_kernel
+def _place_event(pos, code, new_pos, new_code, side, b, i, j, end, o):
+    """Write parent event ``i`` to its side at ``o``, after the clipped events that sort before it."""
+    j, o = _merge_clipped(pos, code, new_pos, new_code, side, b, i, j, end, o)
+    pos[o] = pos[i]
+    code[o] = code[i]
+    return j, o + 1
+
+
 @kernel
 def _distribute_axis(pos, code, span, flags, new_pos, new_code, fill, child_span, b):
     """Axis ``b`` of :func:`_distribute`."""
-    j0 = 0
-    j1 = 0
-    o0 = child_span[0, b, 0]
-    o1 = child_span[1, b, 0]
+    j0, o0 = 0, child_span[0, b, 0]
+    j1, o1 = 0, child_span[1, b, 0]
     for i in range(span[b, 0], span[b, 1]):
         side = flags[code[i] >> 2]
         if side == _LEFT:
-            while j0 < fill[0, b] and event_before(new_pos[0, b, j0], new_code[0, b, j0], pos[i], code[i]):
-                pos[o0] = new_pos[0, b, j0]
-                code[o0] = new_code[0, b, j0]
-                o0 += 1
-                j0 += 1
-            pos[o0] = pos[i]
-            code[o0] = code[i]
-            o0 += 1
+            j0, o0 = _place_event(pos, code, new_pos, new_code, 0, b, i, j0, fill[0, b], o0)
         elif side == _RIGHT:
-            while j1 < fill[1, b] and event_before(new_pos[1, b, j1], new_code[1, b, j1], pos[i], code[i]):
-                pos[o1] = new_pos[1, b, j1]
-                code[o1] = new_code[1, b, j1]
-                o1 += 1
-                j1 += 1
-            pos[o1] = pos[i]
-            code[o1] = code[i]
-            o1 += 1
-    for j in range(j0, fill[0, b]):
-        pos[o0] = new_pos[0, b, j]
-        code[o0] = new_code[0, b, j]
-        o0 += 1
-    for j in range(j1, fill[1, b]):
-        pos[o1] = new_pos[1, b, j]
-        code[o1] = new_code[1, b, j]
-        o1 += 1
-    child_span[0, b, 1] = o0
-    child_span[1, b, 1] = o1
+            j1, o1 = _place_event(pos, code, new_pos, new_code, 1, b, i, j1, fill[1, b], o1)
+    child_span[0, b, 1] = _merge_clipped(pos, code, new_pos, new_code, 0, b, -1, j0, fill[0, b], o0)[1]
+    child_span[1, b, 1] = _merge_clipped(pos, code, new_pos, new_code, 1, b, -1, j1, fill[1, b], o1)[1]
 
 
 @kernel

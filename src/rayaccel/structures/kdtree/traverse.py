@@ -22,12 +22,13 @@ Stacks are preallocated per thread, as deep as the tree.
 
 from __future__ import annotations
 
+import numpy as np
 from numba import prange
 
 from ..._jit import inline_kernel, parallel_kernel, thread_id
 from ...geometry.box import clip_to_box
-from ...geometry.primitive import intersect_prim, ray_setup
-from ..base import EXIT_MARGIN, is_closer, settled_before, store_hit
+from ...geometry.primitive import ray_setup
+from ..base import EXIT_MARGIN, intersect_references, settled_before, store_hit
 from .layout import LEAF
 
 __all__ = ["kdtree_trace_kernel"]
@@ -43,6 +44,7 @@ def kdtree_trace_kernel(lo, hi, node_split, node_link, leaf_prims, kind, geom, o
                         any_hit, stack_node, stack_t, out_t, out_prim, out_u, out_v, work):
     """Trace every ray; ``stack_node`` (threads, depth) int32 and ``stack_t`` (threads, depth, 2)."""
     count_work = work.shape[0] > 0
+    no_mailbox = np.zeros((0, 0), dtype=np.int64)
     for i in prange(origins.shape[0]):
         o = (origins[i, 0], origins[i, 1], origins[i, 2])
         d = (directions[i, 0], directions[i, 1], directions[i, 2])
@@ -95,14 +97,9 @@ def kdtree_trace_kernel(lo, hi, node_split, node_link, leaf_prims, kind, geom, o
                     t1 = t_plane
                 continue
             first = node_link[node, 0]
-            for k in range(first, first + (word >> 2)):
-                prim = leaf_prims[k]
-                n_tests += 1
-                t, u, v = intersect_prim(kind, geom, prim, ray, ray_t_min, best_t)
-                if is_closer(t, prim, best_t, best_prim):
-                    best_t, best_prim, best_u, best_v = t, prim, u, v
-                    if any_hit:
-                        break
+            best_t, best_prim, best_u, best_v, n_tests, _ = intersect_references(
+                first, first + (word >> 2), leaf_prims, no_mailbox, tid, 0, kind, geom, ray, ray_t_min, best_t,
+                best_prim, best_u, best_v, n_tests, 0, any_hit)
             if any_hit and best_prim >= 0:
                 break
             # Once the best hit lies before this leaf's exit, every cell pushed by a plane

@@ -76,10 +76,12 @@ class Octree(Accelerator):
         o = self.tree
         half = np.empty((o.n_nodes, 3))
         half[0] = 0.5 * (o.hi - o.lo)
-        inner = np.flatnonzero(~o.leaf)
-        for node in inner:  # breadth-first order: parents before children
-            first = o.node_link[node, 0]
-            half[first:first + 8] = 0.5 * half[node]
+        frontier = np.zeros(1, dtype=np.int64)
+        while len(frontier):  # level by level: each octant has half its parent's size
+            frontier = frontier[~o.leaf[frontier]]
+            children = (o.node_link[frontier, 0][:, None] + np.arange(8)).ravel()
+            half[children] = np.repeat(0.5 * half[frontier], 8, axis=0)
+            frontier = children
         return np.concatenate((o.node_center - half, o.node_center + half), axis=1)
 
     def _structure_stats(self) -> dict:

@@ -18,8 +18,8 @@ from numba import prange
 
 from ..._jit import inline_kernel, parallel_kernel, thread_id
 from ...geometry.box import clip_to_box
-from ...geometry.primitive import intersect_prim, ray_setup
-from ..base import is_closer, settled_before, store_hit
+from ...geometry.primitive import ray_setup
+from ..base import intersect_references, settled_before, store_hit
 
 __all__ = ["octree_trace_kernel"]
 
@@ -44,6 +44,7 @@ def octree_trace_kernel(lo, hi, node_center, node_link, leaf_prims, kind, geom, 
                         any_hit, stack_node, stack_t, out_t, out_prim, out_u, out_v, work):
     """Trace every ray; ``stack_node`` (threads, 3 * depth + 4) int32, ``stack_t`` (threads, same, 2)."""
     count_work = work.shape[0] > 0
+    no_mailbox = np.zeros((0, 0), dtype=np.int64)
     for i in prange(origins.shape[0]):
         ox, oy, oz = origins[i, 0], origins[i, 1], origins[i, 2]
         dx, dy, dz = directions[i, 0], directions[i, 1], directions[i, 2]
@@ -109,14 +110,9 @@ def octree_trace_kernel(lo, hi, node_center, node_link, leaf_prims, kind, geom, 
                     sp += 1
             else:
                 first = node_link[node, 0]
-                for k in range(first, first + count):
-                    prim = leaf_prims[k]
-                    n_tests += 1
-                    t, u, v = intersect_prim(kind, geom, prim, ray, ray_t_min, best_t)
-                    if is_closer(t, prim, best_t, best_prim):
-                        best_t, best_prim, best_u, best_v = t, prim, u, v
-                        if any_hit:
-                            break
+                best_t, best_prim, best_u, best_v, n_tests, _ = intersect_references(
+                    first, first + count, leaf_prims, no_mailbox, tid, 0, kind, geom, ray, ray_t_min, best_t,
+                    best_prim, best_u, best_v, n_tests, 0, any_hit)
                 if (any_hit and best_prim >= 0) or settled_before(best_prim, best_t, t1):
                     break
                 node = -1
