@@ -250,7 +250,7 @@ def test_bad_options(small_dragon):
     with pytest.raises(ValueError, match="threshold"):
         ra.build(small_dragon, "grid-bvh", threshold=0)
     with pytest.raises(TypeError):
-        ra.build(small_dragon, "kdtree", bins=4)
+        ra.build(small_dragon, "kdtree", buckets=4)
 
 
 def test_statistics_are_consistent(small_dragon):

@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 import time
 from concurrent.futures import ThreadPoolExecutor
+from functools import partial
 
 import numba
 import numpy as np
@@ -15,13 +16,19 @@ from ...stats import box_area, surface_area_stats
 from ..base import Accelerator
 from ..grid.build_uniform import grid_box
 from .build_sah_events import build_subtree
-from .events import root_events
+from .build_sah_binned import build_binned_top
+from .events import node_events, root_events
 from .layout import LEAF, KdTreeArrays, node_cells
 from .traverse import kdtree_trace_kernel
 
 __all__ = ["KdTree"]
 
 _MAX_PRIMS = 1 << 28  # leaf counts are stored as count << 2 in an int32
+
+
+def _exact_subtree(ids, boxes, cell, depth, *params):
+    """:func:`build_subtree` over primitives ``ids`` with bounds ``boxes`` in ``cell``."""
+    return build_subtree(*node_events(ids, boxes), len(ids), cell, depth, *params)
 
 
 class KdTree(Accelerator):
@@ -54,7 +61,7 @@ class KdTree(Accelerator):
     method = "kdtree"
 
     def __init__(self, scene, *, traversal_cost=1.0, intersection_cost=1.33, empty_bonus=0.2, leaf_size=4,
-                 max_depth=None, threads=None):
+                 max_depth=None, bins=64, exact_below=4096, threads=None):
         n = len(scene)
         if n > _MAX_PRIMS:
             raise ValueError(f"the kd-tree holds at most {_MAX_PRIMS:,} primitives, got {n:,}")
@@ -66,6 +73,8 @@ class KdTree(Accelerator):
             "empty_bonus": check_number("empty_bonus", empty_bonus, inclusive=True, maximum=0.99),
             "leaf_size": check_number("leaf_size", leaf_size, integer=True, minimum=1, inclusive=True),
             "max_depth": check_number("max_depth", max_depth, integer=True, inclusive=True, maximum=200),
+            "bins": check_number("bins", bins, integer=True, minimum=2, inclusive=True, maximum=4096),
+            "exact_below": check_number("exact_below", exact_below, integer=True, inclusive=True),
         }
         threads = thread_count() if threads is None else check_number("threads", threads, integer=True, minimum=1,
                                                                        inclusive=True)
@@ -76,7 +85,8 @@ class KdTree(Accelerator):
         self._cells, depth = node_cells(self.kd.lo, self.kd.hi, self.kd.node_split, self.kd.node_link)
         self.max_depth = int(depth.max())
 
-    def _build(self, scene, threads, traversal_cost, intersection_cost, empty_bonus, leaf_size, max_depth):
+    def _build(self, scene, threads, traversal_cost, intersection_cost, empty_bonus, leaf_size, max_depth, bins,
+               exact_below):
         bounds = scene.bounds()
         lo, hi = grid_box(bounds.scene_lo, bounds.scene_hi)
         root_cell = np.concatenate((lo, hi))
@@ -85,22 +95,31 @@ class KdTree(Accelerator):
         params = (scene.kind, scene.geometry, n, traversal_cost, intersection_cost, empty_bonus, leaf_size,
                   max_depth, slack)
         with ThreadPoolExecutor(max(threads, 1)) as pool:
-            pos, code, span = root_events(bounds.lo, bounds.hi, pool if threads > 1 else None)
-            defer_below = max(n // (4 * threads), 4096) if threads > 1 and n >= 8192 else 0
-            node_split, node_link, leaf_prims, _, deferred = build_subtree(pos, code, span, n, root_cell, 0,
-                                                                           *params, defer_below)
-            del pos, code
-            tasks = sorted(deferred, key=lambda task: -task[4])
-            subtrees = pool.map(lambda task: build_subtree(*task[1:], *params, 0), tasks)
+            if exact_below > 0:
+                node_split, node_link, leaf_prims, top_tasks = build_binned_top(
+                    np.arange(n, dtype=np.int64), np.hstack((bounds.lo, bounds.hi)), root_cell, scene.kind,
+                    scene.geometry, traversal_cost, intersection_cost, empty_bonus, leaf_size, max_depth, slack, bins,
+                    exact_below)
+                tasks = [(node, len(ids), partial(_exact_subtree, ids, boxes, cell, depth))
+                         for node, ids, boxes, cell, depth in top_tasks]
+            else:
+                pos, code, span = root_events(bounds.lo, bounds.hi, pool if threads > 1 else None)
+                defer_below = max(n // (4 * threads), 4096) if threads > 1 and n >= 8192 else 0
+                node_split, node_link, leaf_prims, _, deferred = build_subtree(pos, code, span, n, root_cell, 0,
+                                                                               *params, defer_below)
+                del pos, code
+                tasks = [(task[0], task[4], partial(build_subtree, *task[1:])) for task in deferred]
+            tasks.sort(key=lambda task: -task[1])
+            subtrees = pool.map(lambda task: task[2](*params, 0), tasks)
             splits, links, leaves = [node_split], [node_link], [leaf_prims]
             n_nodes, n_refs = len(node_split), len(leaf_prims)
-            for task, (sub_split, sub_link, sub_leaves, _, _) in zip(tasks, subtrees):
+            for (node, _, _), (sub_split, sub_link, sub_leaves, _, _) in zip(tasks, subtrees):
                 # the subtree's root replaces its placeholder; its other nodes follow the nodes so far
                 leaf = (sub_link[:, 1] & 3) == LEAF
                 sub_link[~leaf, 0] += n_nodes - 1
                 sub_link[leaf, 0] += n_refs
-                node_split[task[0]] = sub_split[0]
-                node_link[task[0]] = sub_link[0]
+                node_split[node] = sub_split[0]
+                node_link[node] = sub_link[0]
                 splits.append(sub_split[1:])
                 links.append(sub_link[1:])
                 leaves.append(sub_leaves)

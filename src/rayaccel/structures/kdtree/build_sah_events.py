@@ -39,14 +39,12 @@ import numpy as np
 from numba.typed import List
 
 from ..._jit import inline_kernel, kernel
-from ...geometry.clip import CLIP_VERTICES, clipped_bounds
+from ...geometry.clip import CLIP_VERTICES, split_clipped_bounds
 from ..build_arrays import reserve_rows
 from .events import END, PLANAR, START, event_before, sort_events
 from .layout import LEAF
 
 __all__ = ["build_subtree"]
-
-_NOT_A_PLANE = 1e300  # cost added to events that are not candidate planes
 
 _BOTH = 0
 _LEFT = 1
@@ -57,10 +55,10 @@ _RIGHT = 2
 def _best_plane(pos, code, first, last, axis, cell, n, traversal_cost, intersection_cost, empty_bonus):
     """Sweep one axis's events; return (cost, position, planar primitives go left) of its best plane.
 
-    After the events at position ``p`` (ends, then planars, then starts) the
-    counts are ``n_left`` (boxes starting at or before ``p``) and ``n_right``
-    (boxes ending after ``p``); the primitives in the plane are ``planars``, counted
-    in ``n_left``.
+    The events are taken a position at a time. Before position ``p``, ``n_left``
+    counts the boxes that start before ``p``; after its events, ``n_right``
+    counts the boxes that end after it. The primitives lying in the plane
+    (``planars``) are tried on the left side, then on the right.
     """
     lo = cell[axis]
     hi = cell[axis + 3]
@@ -70,7 +68,7 @@ def _best_plane(pos, code, first, last, axis, cell, n, traversal_cost, intersect
     best_cost = np.inf
     best_pos = 0.0
     best_planar_left = True
-    if area <= 0.0 or first == last:
+    if area <= 0.0:
         return best_cost, best_pos, best_planar_left
     scale = 2.0 * intersection_cost / area
     cap = e1 * e2
@@ -78,42 +76,34 @@ def _best_plane(pos, code, first, last, axis, cell, n, traversal_cost, intersect
     empty_weight = 1.0 - empty_bonus
     n_left = 0
     n_right = n
-    group_starts = 0
-    group_planars = 0
-    previous = pos[first]
-    for k in range(first, last):
+    k = first
+    while k < last:
         p = pos[k]
-        kind = code[k] & 3
-        same = p == previous
-        group_starts = group_starts * same + (kind == START)
-        group_planars = group_planars * same + (kind == PLANAR)
-        n_left += kind != END
-        n_right -= kind != START
-        previous = p
-        following = pos[k + 1] if k + 1 < last else np.inf
-        area_left = cap + (p - lo) * ring
-        area_right = cap + (hi - p) * ring
-        left = n_left - group_starts
-        weight = 1.0 - empty_bonus * ((left == 0) | (n_right == 0))
-        cost = traversal_cost + weight * scale * (area_left * left + area_right * n_right)
-        # Only the last event at a position strictly inside the cell is a candidate. Positions
-        # repeat at random (shared vertices), so the choice is arithmetic, not branches.
-        candidate = (following != p) & (lo < p) & (p < hi)
-        cost += _NOT_A_PLANE * (1 - candidate)
-        better = cost < best_cost
-        best_cost = min(cost, best_cost)
-        best_pos += (p - best_pos) * better
-        if group_planars > 0 and following != p and lo < p < hi:
-            left -= group_planars
-            right = n_right + group_planars
-            weight = empty_weight if left == 0 or right == 0 else 1.0
-            cost = traversal_cost + weight * scale * (area_left * left + area_right * right)
+        ends = 0
+        planars = 0
+        starts = 0
+        while k < last and pos[k] == p:
+            kind = code[k] & 3
+            ends += kind == END
+            planars += kind == PLANAR
+            starts += kind == START
+            k += 1
+        n_right -= ends + planars
+        if lo < p < hi:
+            area_left = cap + (p - lo) * ring
+            area_right = cap + (hi - p) * ring
+            left = n_left + planars
+            weight = empty_weight if left == 0 or n_right == 0 else 1.0
+            cost = traversal_cost + weight * scale * (area_left * left + area_right * n_right)
             if cost < best_cost:
-                best_cost, best_pos, best_planar_left = cost, p, False
-            elif best_pos == p:
-                best_planar_left = True
-    if best_cost >= _NOT_A_PLANE:
-        best_cost = np.inf
+                best_cost, best_pos, best_planar_left = cost, p, True
+            if planars > 0:
+                right = n_right + planars
+                weight = empty_weight if n_left == 0 or right == 0 else 1.0
+                cost = traversal_cost + weight * scale * (area_left * n_left + area_right * right)
+                if cost < best_cost:
+                    best_cost, best_pos, best_planar_left = cost, p, False
+        n_left += starts + planars
     return best_cost, best_pos, best_planar_left
 
 
@@ -140,65 +130,82 @@ def _classify(pos, code, first, last, p, planar_left, flags, straddling):
 
 
 @kernel
-def _clip_straddling(straddling, n_straddling, cell, kind, geom, slack, poly, box, new_pos, new_code, fill):
-    """Events of the straddling primitives ``straddling[:n_straddling]`` clipped to ``cell``:
-    rows ``new_pos[axis, :fill[axis]]`` (and ``new_code``) per axis, each sorted."""
+def _clip_straddling(straddling, n_straddling, cell, axis, p, kind, geom, slack, poly, half, boxes, new_pos,
+                     new_code, fill):
+    """Events of the straddling primitives ``straddling[:n_straddling]`` clipped to the two
+    halves of ``cell`` split at ``p`` on ``axis``: rows ``new_pos[side, b, :fill[side, b]]``
+    (and ``new_code``) per side and axis ``b``, each sorted."""
     fill[:] = 0
     for k in range(n_straddling):
         prim = straddling[k]
-        if not clipped_bounds(kind, geom, prim, cell, slack, poly, box):
-            continue
+        sides = split_clipped_bounds(kind, geom, prim, cell, axis, p, slack, poly, half, boxes)
+        for side in range(2):
+            if not sides & (1 << side):
+                continue
+            for b in range(3):
+                f = fill[side, b]
+                lo = boxes[side, b]
+                hi = boxes[side, b + 3]
+                if lo == hi:
+                    new_pos[side, b, f] = lo
+                    new_code[side, b, f] = prim << 2 | PLANAR
+                    fill[side, b] = f + 1
+                else:
+                    new_pos[side, b, f] = lo
+                    new_code[side, b, f] = prim << 2 | START
+                    new_pos[side, b, f + 1] = hi
+                    new_code[side, b, f + 1] = prim << 2 | END
+                    fill[side, b] = f + 2
+    for side in range(2):
         for b in range(3):
-            f = fill[b]
-            if box[b] == box[b + 3]:
-                new_pos[b, f] = box[b]
-                new_code[b, f] = prim << 2 | PLANAR
-                fill[b] = f + 1
-            else:
-                new_pos[b, f] = box[b]
-                new_code[b, f] = prim << 2 | START
-                new_pos[b, f + 1] = box[b + 3]
-                new_code[b, f + 1] = prim << 2 | END
-                fill[b] = f + 2
-    for b in range(3):
-        sort_events(new_pos[b], new_code[b], fill[b])
+            sort_events(new_pos[side, b], new_code[side, b], fill[side, b])
 
 
-@inline_kernel
-def _merge_clipped(pos, code, new_pos, new_code, side, b, until, j, end, o):
-    """Copy the clipped events ``new_*[side, b, j:end]`` that sort before ``until`` (an index
-    into ``pos``/``code``; all of them when it is -1) to ``pos``/``code`` from ``o`` on;
-    returns the two cursors."""
-    while j < end and (until < 0 or event_before(new_pos[side, b, j], new_code[side, b, j], pos[until], code[until])):
-        pos[o] = new_pos[side, b, j]
-        code[o] = new_code[side, b, j]
+@kernel
+def _merge_clipped(pos, code, first, kept, new_pos, new_code, n_new):
+    """Merge the sorted clipped events ``new_pos[:n_new]`` into a child's slot, whose
+    sorted parent events are ``pos[first + n_new:first + n_new + kept]``, writing
+    from ``first`` on. The write cursor never passes the read cursor, so no copy
+    of the parent events is needed. Returns the slot's end."""
+    i = first + n_new
+    end = i + kept
+    o = first
+    j = 0
+    while j < n_new:
+        if i < end and event_before(pos[i], code[i], new_pos[j], new_code[j]):
+            pos[o] = pos[i]
+            code[o] = code[i]
+            i += 1
+        else:
+            pos[o] = new_pos[j]
+            code[o] = new_code[j]
+            j += 1
         o += 1
-        j += 1
-    return j, o
-
-
-@inline_kernel
-def _place_event(pos, code, new_pos, new_code, side, b, i, j, end, o):
-    """Write parent event ``i`` to its side at ``o``, after the clipped events that sort before it."""
-    j, o = _merge_clipped(pos, code, new_pos, new_code, side, b, i, j, end, o)
-    pos[o] = pos[i]
-    code[o] = code[i]
-    return j, o + 1
+    return end
 
 
 @kernel
 def _distribute_axis(pos, code, span, flags, new_pos, new_code, fill, child_span, b):
-    """Axis ``b`` of :func:`_distribute`."""
-    j0, o0 = 0, child_span[0, b, 0]
-    j1, o1 = 0, child_span[1, b, 0]
+    """Axis ``b`` of :func:`_distribute`. The parent events of each child go after room for
+    its clipped events, which are then merged in from the front."""
+    o0 = child_span[0, b, 0] + fill[0, b]
+    o1 = child_span[1, b, 0] + fill[1, b]
     for i in range(span[b, 0], span[b, 1]):
-        side = flags[code[i] >> 2]
+        c = code[i]
+        side = flags[c >> 2]
         if side == _LEFT:
-            j0, o0 = _place_event(pos, code, new_pos, new_code, 0, b, i, j0, fill[0, b], o0)
+            pos[o0] = pos[i]
+            code[o0] = c
+            o0 += 1
         elif side == _RIGHT:
-            j1, o1 = _place_event(pos, code, new_pos, new_code, 1, b, i, j1, fill[1, b], o1)
-    child_span[0, b, 1] = _merge_clipped(pos, code, new_pos, new_code, 0, b, -1, j0, fill[0, b], o0)[1]
-    child_span[1, b, 1] = _merge_clipped(pos, code, new_pos, new_code, 1, b, -1, j1, fill[1, b], o1)[1]
+            pos[o1] = pos[i]
+            code[o1] = c
+            o1 += 1
+    for side, o in ((0, o0), (1, o1)):
+        first = child_span[side, b, 0]
+        n_new = fill[side, b]
+        child_span[side, b, 1] = _merge_clipped(pos, code, first, o - first - n_new, new_pos[side, b], new_code[side, b],
+                                                n_new)
 
 
 @kernel
@@ -257,7 +264,8 @@ def build_subtree(pos, code, span, n_prims, cell, depth, kind, geom, n_scene_pri
     deepest = depth
     flags = np.empty(n_scene_prims, dtype=np.uint8)
     poly = np.empty((2, CLIP_VERTICES, 3))
-    box = np.empty(6)
+    half = np.empty(6)
+    boxes = np.empty((2, 6))
     fill = np.empty((2, 3), dtype=np.int64)
     straddling = np.empty(64, dtype=np.int64)
     new_pos = np.empty((2, 3, 64))
@@ -315,9 +323,8 @@ def build_subtree(pos, code, span, n_prims, cell, depth, kind, geom, n_scene_pri
                 child_cell[side] = cell
             child_cell[0, axis + 3] = best_pos
             child_cell[1, axis] = best_pos
-            for side in range(2):
-                _clip_straddling(straddling, n_straddling, child_cell[side], kind, geom, slack, poly, box,
-                                 new_pos[side], new_code[side], fill[side])
+            _clip_straddling(straddling, n_straddling, cell, axis, best_pos, kind, geom, slack, poly, half, boxes,
+                             new_pos, new_code, fill)
             slot = top
             for side in range(2):
                 for b in range(3):

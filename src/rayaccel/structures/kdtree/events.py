@@ -12,9 +12,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..._jit import kernel
+from ..._jit import inline_kernel, kernel
 
-__all__ = ["END", "PLANAR", "START", "order_ties", "root_events", "event_before", "sort_events"]
+__all__ = ["END", "PLANAR", "START", "order_ties", "axis_events", "node_events", "root_events", "event_before", "sort_events"]
 
 END = 0
 PLANAR = 1
@@ -42,26 +42,74 @@ def order_ties(pos, code, scratch):
         i = j
 
 
+@kernel
+def axis_events(ids, boxes, axis):
+    """The sorted events ``(pos, code)`` on ``axis`` of primitives ``ids`` with bounds
+    ``boxes`` (n, 6: lo, hi)."""
+    n_events = 0
+    for i in range(ids.shape[0]):
+        n_events += 1 if boxes[i, axis] == boxes[i, axis + 3] else 2
+    pos = np.empty(n_events)
+    code = np.empty(n_events, dtype=np.int64)
+    k = 0
+    for i in range(ids.shape[0]):
+        lo = boxes[i, axis]
+        hi = boxes[i, axis + 3]
+        if lo == hi:
+            pos[k] = lo
+            code[k] = ids[i] << 2 | PLANAR
+            k += 1
+        else:
+            pos[k] = lo
+            code[k] = ids[i] << 2 | START
+            pos[k + 1] = hi
+            code[k + 1] = ids[i] << 2 | END
+            k += 2
+    order = np.argsort(pos)
+    pos = pos[order]
+    code = code[order]
+    order_ties(pos, code, np.empty(n_events, dtype=np.int64))
+    return pos, code
+
+
+@kernel
+def _concatenate_axes(pos0, code0, pos1, code1, pos2, code2):
+    sizes = (pos0.shape[0], pos1.shape[0], pos2.shape[0])
+    total = sizes[0] + sizes[1] + sizes[2]
+    pos = np.empty(total)
+    code = np.empty(total, dtype=np.int64)
+    span = np.empty((3, 2), dtype=np.int64)
+    span[0, 0] = 0
+    span[0, 1] = span[1, 0] = sizes[0]
+    span[1, 1] = span[2, 0] = sizes[0] + sizes[1]
+    span[2, 1] = total
+    pos[:sizes[0]] = pos0
+    pos[span[1, 0]:span[1, 1]] = pos1
+    pos[span[2, 0]:] = pos2
+    code[:sizes[0]] = code0
+    code[span[1, 0]:span[1, 1]] = code1
+    code[span[2, 0]:] = code2
+    return pos, code, span
+
+
+@kernel
+def node_events(ids, boxes):
+    """The sorted events of primitives ``ids`` with bounds ``boxes``, axis by axis:
+    ``(pos, code, span)`` with axis ``a``'s events at ``span[a, 0]:span[a, 1]``."""
+    pos0, code0 = axis_events(ids, boxes, 0)
+    pos1, code1 = axis_events(ids, boxes, 1)
+    pos2, code2 = axis_events(ids, boxes, 2)
+    return _concatenate_axes(pos0, code0, pos1, code1, pos2, code2)
+
+
 def root_events(lo: np.ndarray, hi: np.ndarray, executor=None):
-    """The sorted events of all primitives, axis by axis: ``(pos, code, span)`` with
-    ``code = prim << 2 | type`` and axis ``a``'s events at ``span[a, 0]:span[a, 1]``.
-    The three axes sort concurrently when ``executor`` is given."""
-    prims = np.arange(len(lo), dtype=np.int64)
-
-    def one_axis(axis):
-        flat = lo[:, axis] == hi[:, axis]
-        solid = ~flat
-        pos = np.concatenate((hi[solid, axis], lo[flat, axis], lo[solid, axis]))
-        code = np.concatenate((prims[solid] << 2 | END, prims[flat] << 2 | PLANAR, prims[solid] << 2 | START))
-        order = np.argsort(pos)
-        pos, code = pos[order], code[order]
-        order_ties(pos, code, np.empty(len(code), dtype=np.int64))
-        return pos, code
-
-    per_axis = list(executor.map(one_axis, range(3)) if executor else map(one_axis, range(3)))
-    lengths = np.array([len(p) for p, _ in per_axis], dtype=np.int64)
-    span = np.stack((np.cumsum(lengths) - lengths, np.cumsum(lengths)), axis=1)
-    return np.concatenate([p for p, _ in per_axis]), np.concatenate([c for _, c in per_axis]), span
+    """:func:`node_events` of all primitives; the three axes sort concurrently when
+    ``executor`` is given."""
+    ids = np.arange(len(lo), dtype=np.int64)
+    boxes = np.hstack((lo, hi))
+    per_axis = list(executor.map(lambda axis: axis_events(ids, boxes, axis), range(3)) if executor
+                    else (axis_events(ids, boxes, axis) for axis in range(3)))
+    return _concatenate_axes(*per_axis[0], *per_axis[1], *per_axis[2])
 
 
 @kernel
@@ -69,10 +117,31 @@ def event_before(pos_a, code_a, pos_b, code_b):
     return pos_a < pos_b or (pos_a == pos_b and code_a & 3 < code_b & 3)
 
 
+@inline_kernel
+def _swap_events(pos, code, a, b):
+    pos[a], pos[b] = pos[b], pos[a]
+    code[a], code[b] = code[b], code[a]
+
+
+@inline_kernel
+def _sift_down(pos, code, root, end):
+    while True:
+        child = 2 * root + 1
+        if child >= end:
+            return
+        if child + 1 < end and event_before(pos[child], code[child], pos[child + 1], code[child + 1]):
+            child += 1
+        if not event_before(pos[root], code[root], pos[child], code[child]):
+            return
+        _swap_events(pos, code, root, child)
+        root = child
+
+
 @kernel
 def sort_events(pos, code, n):
-    """Sort ``pos[:n]``, ``code[:n]`` in place by position, then type."""
-    if n <= 32:
+    """Sort ``pos[:n]``, ``code[:n]`` in place by position, then type, without allocating:
+    insertion sort for a few events, heapsort for more."""
+    if n <= 24:
         for k in range(1, n):
             p = pos[k]
             c = code[k]
@@ -84,9 +153,8 @@ def sort_events(pos, code, n):
             pos[j] = p
             code[j] = c
         return
-    order = np.argsort(pos[:n])
-    sorted_pos = pos[:n][order]
-    sorted_code = code[:n][order]
-    pos[:n] = sorted_pos
-    code[:n] = sorted_code
-    order_ties(pos[:n], code[:n], np.empty(n, dtype=np.int64))
+    for root in range(n // 2 - 1, -1, -1):
+        _sift_down(pos, code, root, n)
+    for end in range(n - 1, 0, -1):
+        _swap_events(pos, code, 0, end)
+        _sift_down(pos, code, 0, end)
