@@ -103,3 +103,30 @@ def test_any_float_dtype_and_memory_order():
     agree = np.mean(as_f32.prim == reference.prim)
     assert agree > 0.98
     np.testing.assert_array_equal(accel.intersect(np.asfortranarray(origins), directions[:, :]).prim, reference.prim)
+
+
+def test_split_clipped_bounds_hold_every_point_of_each_half():
+    from rayaccel.geometry.clip import CLIP_VERTICES, split_clipped_bounds
+
+    rng = np.random.default_rng(3)
+    triangles = rng.uniform(-0.2, 1.2, (300, 9))
+    weights = np.array([(a, b) for a in np.linspace(0, 1, 25) for b in np.linspace(0, 1, 25) if a + b <= 1])
+    poly, out = np.empty((2, CLIP_VERTICES, 3)), np.empty((2, 6))
+    for prim, triangle in enumerate(triangles):
+        corners = triangle.reshape(3, 3)
+        points = corners[0] + weights[:, :1] * (corners[1] - corners[0]) + weights[:, 1:] * (corners[2] - corners[0])
+        box = np.concatenate((rng.uniform(0.0, 0.4, 3), rng.uniform(0.6, 1.0, 3)))
+        axis = prim % 3
+        plane = rng.uniform(box[axis], box[axis + 3])
+        sides = split_clipped_bounds(ra.scene.TRIANGLE, triangles, prim, box, axis, plane, 1e-12, poly, out)
+        for side in range(2):
+            half = box.copy()
+            half[axis + 3 * (1 - side)] = plane
+            inside = points[((points >= half[:3]) & (points <= half[3:])).all(axis=1)]
+            if len(inside):
+                assert sides & (1 << side)
+            if sides & (1 << side):
+                assert (out[side, :3] >= half[:3]).all() and (out[side, 3:] <= half[3:]).all()
+                assert (inside >= out[side, :3] - 1e-12).all() and (inside <= out[side, 3:] + 1e-12).all()
+                assert (out[side, :3] >= corners.min(axis=0) - 1e-12).all()
+                assert (out[side, 3:] <= corners.max(axis=0) + 1e-12).all()

@@ -109,7 +109,6 @@ def _split_refs(ids, boxes, axis, p, cell, kind, geom, slack):
     n_left = 0
     n_right = 0
     poly = np.empty((2, CLIP_VERTICES, 3))
-    half = np.empty(6)
     clipped = np.empty((2, 6))
     for i in range(n):
         left = boxes[i, axis + 3] <= p
@@ -121,7 +120,7 @@ def _split_refs(ids, boxes, axis, p, cell, kind, geom, slack):
             _copy_ref(ids[i], boxes[i], right_ids, right_boxes, n_right)
             n_right += 1
         else:
-            sides = split_clipped_bounds(kind, geom, ids[i], cell, axis, p, slack, poly, half, clipped)
+            sides = split_clipped_bounds(kind, geom, ids[i], cell, axis, p, slack, poly, clipped)
             if sides & 1:
                 _copy_ref(ids[i], clipped[0], left_ids, left_boxes, n_left)
                 n_left += 1

@@ -110,35 +110,57 @@ def _best_plane(pos, code, first, last, axis, cell, n, traversal_cost, intersect
 @kernel
 def _classify(pos, code, first, last, p, planar_left, flags, straddling):
     """Mark each primitive of the node left only, right only, or both (straddling the plane);
-    list the straddling ones in ``straddling`` and return how many there are."""
-    for i in range(first, last):
-        flags[code[i] >> 2] = _BOTH
+    list the straddling ones in ``straddling``. Returns the numbers of primitives left only,
+    right only, and straddling.
+
+    One pass over the split axis's events suffices: a box's start comes before its end,
+    so a start below the plane marks the primitive as straddling until an end at or
+    below the plane moves it to the left."""
+    n_left = 0
+    n_right = 0
     n_straddling = 0
     for i in range(first, last):
-        kind = code[i] & 3
-        prim = code[i] >> 2
+        c = code[i]
+        kind = c & 3
+        prim = c >> 2
         x = pos[i]
-        planar = kind == PLANAR
-        left = ((kind == END) & (x <= p)) | (planar & ((x < p) | ((x == p) & planar_left)))
-        right = ((kind == START) & (x >= p)) | (planar & ~left)
-        flags[prim] = _LEFT if left else (_RIGHT if right else flags[prim])
-    for i in range(first, last):
-        if code[i] & 3 == START and flags[code[i] >> 2] == _BOTH:
-            straddling[n_straddling] = code[i] >> 2
-            n_straddling += 1
-    return n_straddling
+        if kind == START:
+            flags[prim] = _RIGHT if x >= p else _BOTH
+        elif kind == END:
+            if x <= p:
+                flags[prim] = _LEFT
+                n_left += 1
+            elif flags[prim] == _BOTH:
+                straddling[n_straddling] = prim
+                n_straddling += 1
+            else:
+                n_right += 1
+        elif x < p or (x == p and planar_left):
+            flags[prim] = _LEFT
+            n_left += 1
+        else:
+            flags[prim] = _RIGHT
+            n_right += 1
+    return n_left, n_right, n_straddling
 
 
 @kernel
-def _clip_straddling(straddling, n_straddling, cell, axis, p, kind, geom, slack, poly, half, boxes, new_pos,
-                     new_code, fill):
+def _clip_straddling(straddling, n_straddling, cell, axis, p, kind, geom, slack, poly, boxes, new_pos, new_code,
+                     fill):
     """Events of the straddling primitives ``straddling[:n_straddling]`` clipped to the two
     halves of ``cell`` split at ``p`` on ``axis``: rows ``new_pos[side, b, :fill[side, b]]``
-    (and ``new_code``) per side and axis ``b``, each sorted."""
-    fill[:] = 0
+    (and ``new_code``) per side and axis ``b``, each sorted. Returns how many primitives
+    each side keeps."""
+    for side in range(2):
+        for b in range(3):
+            fill[side, b] = 0
+    kept_left = 0
+    kept_right = 0
     for k in range(n_straddling):
         prim = straddling[k]
-        sides = split_clipped_bounds(kind, geom, prim, cell, axis, p, slack, poly, half, boxes)
+        sides = split_clipped_bounds(kind, geom, prim, cell, axis, p, slack, poly, boxes)
+        kept_left += sides & 1
+        kept_right += sides >> 1
         for side in range(2):
             if not sides & (1 << side):
                 continue
@@ -159,6 +181,7 @@ def _clip_straddling(straddling, n_straddling, cell, axis, p, kind, geom, slack,
     for side in range(2):
         for b in range(3):
             sort_events(new_pos[side, b], new_code[side, b], fill[side, b])
+    return kept_left, kept_right
 
 
 @kernel
@@ -209,26 +232,29 @@ def _distribute_axis(pos, code, span, flags, new_pos, new_code, fill, child_span
 
 
 @kernel
-def _child_prims(code, child_span, side):
-    """Primitives of a child: its axis-0 events that are not ends."""
-    n = 0
-    for k in range(child_span[side, 0, 0], child_span[side, 0, 1]):
-        n += code[k] & 3 != END
-    return n
-
-
-@kernel
 def _distribute(pos, code, span, flags, new_pos, new_code, fill, child_span):
     """One pass over the parent's events: each goes to the left child, the right child or
     (straddling) neither, merged on the way with the clipped events of its side.
 
     ``child_span[side, axis]`` arrives holding where that child's events of that axis
     start (room for every parent event of the axis plus the clipped ones) and leaves
-    holding their (first, end). Returns the two children's primitive counts.
+    holding their (first, end).
     """
     for b in range(3):
         _distribute_axis(pos, code, span, flags, new_pos, new_code, fill, child_span, b)
-    return _child_prims(code, child_span, 0), _child_prims(code, child_span, 1)
+
+
+@inline_kernel
+def _copy_cell(dst, src):
+    for c in range(6):
+        dst[c] = src[c]
+
+
+@inline_kernel
+def _copy_span(dst, src):
+    for axis in range(3):
+        dst[axis, 0] = src[axis, 0]
+        dst[axis, 1] = src[axis, 1]
 
 
 @kernel
@@ -264,7 +290,6 @@ def build_subtree(pos, code, span, n_prims, cell, depth, kind, geom, n_scene_pri
     deepest = depth
     flags = np.empty(n_scene_prims, dtype=np.uint8)
     poly = np.empty((2, CLIP_VERTICES, 3))
-    half = np.empty(6)
     boxes = np.empty((2, 6))
     fill = np.empty((2, 3), dtype=np.int64)
     straddling = np.empty(64, dtype=np.int64)
@@ -314,17 +339,17 @@ def build_subtree(pos, code, span, n_prims, cell, depth, kind, geom, n_scene_pri
             axis = best_axis
             first, last = span[axis, 0], span[axis, 1]
             straddling = reserve_rows(straddling, last - first)
-            n_straddling = _classify(arena_pos, arena_code, first, last, best_pos, best_planar_left, flags,
-                                     straddling)
+            n_left, n_right, n_straddling = _classify(arena_pos, arena_code, first, last, best_pos, best_planar_left,
+                                                      flags, straddling)
             if new_pos.shape[2] < 2 * n_straddling:
                 new_pos = np.empty((2, 3, 4 * n_straddling))
                 new_code = np.empty((2, 3, 4 * n_straddling), dtype=np.int64)
             for side in range(2):
-                child_cell[side] = cell
+                _copy_cell(child_cell[side], cell)
             child_cell[0, axis + 3] = best_pos
             child_cell[1, axis] = best_pos
-            _clip_straddling(straddling, n_straddling, cell, axis, best_pos, kind, geom, slack, poly, half, boxes,
-                             new_pos, new_code, fill)
+            kept_left, kept_right = _clip_straddling(straddling, n_straddling, cell, axis, best_pos, kind, geom, slack,
+                                                     poly, boxes, new_pos, new_code, fill)
             slot = top
             for side in range(2):
                 for b in range(3):
@@ -332,7 +357,7 @@ def build_subtree(pos, code, span, n_prims, cell, depth, kind, geom, n_scene_pri
                     slot += span[b, 1] - span[b, 0] + fill[side, b]
             arena_pos = reserve_rows(arena_pos, slot)
             arena_code = reserve_rows(arena_code, slot)
-            n_left, n_right = _distribute(arena_pos, arena_code, span, flags, new_pos, new_code, fill, child_span)
+            _distribute(arena_pos, arena_code, span, flags, new_pos, new_code, fill, child_span)
             child = n_nodes
             n_nodes += 2
             node_split = reserve_rows(node_split, n_nodes)
@@ -341,15 +366,15 @@ def build_subtree(pos, code, span, n_prims, cell, depth, kind, geom, n_scene_pri
             node_link[node, 0] = child
             node_link[node, 1] = axis
             task_node[sp] = child + 1
-            task_span[sp] = child_span[1]
-            task_n[sp] = n_right
-            task_cell[sp] = child_cell[1]
+            _copy_span(task_span[sp], child_span[1])
+            task_n[sp] = n_right + kept_right
+            _copy_cell(task_cell[sp], child_cell[1])
             task_depth[sp] = depth + 1
             sp += 1
             node = child
-            span[:] = child_span[0]
-            n = n_left
-            cell[:] = child_cell[0]
+            _copy_span(span, child_span[0])
+            n = n_left + kept_left
+            _copy_cell(cell, child_cell[0])
             depth += 1
             top = slot
             continue
@@ -357,9 +382,9 @@ def build_subtree(pos, code, span, n_prims, cell, depth, kind, geom, n_scene_pri
             break
         sp -= 1
         node = task_node[sp]
-        span[:] = task_span[sp]
+        _copy_span(span, task_span[sp])
         n = task_n[sp]
-        cell[:] = task_cell[sp]
+        _copy_cell(cell, task_cell[sp])
         depth = task_depth[sp]
         top = span[2, 1]
     return node_split[:n_nodes].copy(), node_link[:n_nodes].copy(), leaf_prims[:n_refs].copy(), deepest, deferred
