@@ -26,6 +26,32 @@ __all__ = ["KdTree"]
 _MAX_PRIMS = 1 << 28  # leaf counts are stored as count << 2 in an int32
 
 
+def _graft(tree, placeholders, subtrees):
+    """Put each subtree ``(node_split, node_link, leaf_prims)`` in place of its placeholder
+    leaf in ``tree`` (the same three arrays): the subtree's root takes the placeholder's
+    slot, its other nodes and its leaf references are appended. Returns the new tree and,
+    per subtree, the index its node 1 got (its node ``k > 0`` is at that index + k - 1)."""
+    node_split, node_link, leaf_prims = tree
+    if not subtrees:
+        return tree, np.zeros(0, dtype=np.int64)
+    counts = np.array([len(split) for split, _, _ in subtrees])
+    refs = np.array([len(leaves) for _, _, leaves in subtrees])
+    firsts = len(node_split) + np.cumsum(counts - 1) - (counts - 1)
+    ref_firsts = len(leaf_prims) + np.cumsum(refs) - refs
+    splits = np.concatenate([split for split, _, _ in subtrees])
+    links = np.concatenate([link for _, link, _ in subtrees])
+    leaf = (links[:, 1] & 3) == LEAF
+    links[:, 0] += np.where(leaf, np.repeat(ref_firsts, counts), np.repeat(firsts - 1, counts))
+    roots = np.cumsum(counts) - counts
+    node_split[placeholders] = splits[roots]
+    node_link[placeholders] = links[roots]
+    rest = np.ones(len(splits), dtype=bool)
+    rest[roots] = False
+    tree = (np.concatenate((node_split, splits[rest])), np.concatenate((node_link, links[rest])),
+            np.concatenate([leaf_prims] + [leaves for _, _, leaves in subtrees]))
+    return tree, firsts
+
+
 def _exact_subtree(ids, boxes, cell, depth, *params):
     """:func:`build_subtree` over primitives ``ids`` with bounds ``boxes`` in ``cell``."""
     return build_subtree(*node_events(ids, boxes), len(ids), cell, depth, *params)
@@ -96,38 +122,40 @@ class KdTree(Accelerator):
                   max_depth, slack)
         with ThreadPoolExecutor(max(threads, 1)) as pool:
             if exact_below > 0:
-                node_split, node_link, leaf_prims, top_tasks = build_binned_top(
-                    np.arange(n, dtype=np.int64), np.hstack((bounds.lo, bounds.hi)), root_cell, scene.kind,
-                    scene.geometry, traversal_cost, intersection_cost, empty_bonus, leaf_size, max_depth, slack, bins,
-                    exact_below)
-                tasks = [(node, len(ids), partial(_exact_subtree, ids, boxes, cell, depth))
-                         for node, ids, boxes, cell, depth in top_tasks]
+                tree, tasks = self._binned_top(pool, scene, bounds, root_cell, threads, slack, traversal_cost,
+                                               intersection_cost, empty_bonus, leaf_size, max_depth, bins, exact_below)
+                exact = [(node, len(ids), partial(_exact_subtree, ids, boxes, cell, depth))
+                         for node, ids, boxes, cell, depth in tasks]
             else:
                 pos, code, span = root_events(bounds.lo, bounds.hi, pool if threads > 1 else None)
                 defer_below = max(n // (4 * threads), 4096) if threads > 1 and n >= 8192 else 0
-                node_split, node_link, leaf_prims, _, deferred = build_subtree(pos, code, span, n, root_cell, 0,
-                                                                               *params, defer_below)
+                *tree, _, deferred = build_subtree(pos, code, span, n, root_cell, 0, *params, defer_below)
                 del pos, code
-                tasks = [(task[0], task[4], partial(build_subtree, *task[1:])) for task in deferred]
-            tasks.sort(key=lambda task: -task[1])
-            subtrees = pool.map(lambda task: task[2](*params, 0), tasks)
-            splits, links, leaves = [node_split], [node_link], [leaf_prims]
-            n_nodes, n_refs = len(node_split), len(leaf_prims)
-            for (node, _, _), (sub_split, sub_link, sub_leaves, _, _) in zip(tasks, subtrees):
-                # the subtree's root replaces its placeholder; its other nodes follow the nodes so far
-                leaf = (sub_link[:, 1] & 3) == LEAF
-                sub_link[~leaf, 0] += n_nodes - 1
-                sub_link[leaf, 0] += n_refs
-                node_split[node] = sub_split[0]
-                node_link[node] = sub_link[0]
-                splits.append(sub_split[1:])
-                links.append(sub_link[1:])
-                leaves.append(sub_leaves)
-                n_nodes += len(sub_split) - 1
-                n_refs += len(sub_leaves)
-        if n_nodes >= np.iinfo(np.int32).max or n_refs >= np.iinfo(np.int32).max:
+                exact = [(task[0], task[4], partial(build_subtree, *task[1:])) for task in deferred]
+            exact.sort(key=lambda task: -task[1])
+            subtrees = list(pool.map(lambda task: task[2](*params, 0)[:3], exact))
+        (node_split, node_link, leaf_prims), _ = _graft(tree, [task[0] for task in exact], subtrees)
+        if len(node_split) >= np.iinfo(np.int32).max or len(leaf_prims) >= np.iinfo(np.int32).max:
             raise ValueError("the kd-tree outgrew int32 indices; raise leaf_size or lower max_depth")
-        return KdTreeArrays(lo, hi, np.concatenate(splits), np.concatenate(links), np.concatenate(leaves))
+        return KdTreeArrays(lo, hi, node_split, node_link, leaf_prims)
+
+    @staticmethod
+    def _binned_top(pool, scene, bounds, root_cell, threads, slack, traversal_cost, intersection_cost, empty_bonus,
+                    leaf_size, max_depth, bins, exact_below):
+        """The binned upper levels: serially down to nodes of ``n / (4 threads)`` primitives,
+        then those subtrees concurrently. Returns the tree so far and the exact sweep's tasks."""
+        top = (scene.kind, scene.geometry, traversal_cost, intersection_cost, empty_bonus, leaf_size, max_depth, slack,
+               bins)
+        n = len(scene)
+        *tree, tasks = build_binned_top(np.arange(n, dtype=np.int64), np.hstack((bounds.lo, bounds.hi)), root_cell, 0,
+                                        *top, max(exact_below, n // (4 * threads)))
+        upper = [task for task in tasks if len(task[1]) >= exact_below]
+        tasks = [task for task in tasks if len(task[1]) < exact_below]
+        results = list(pool.map(lambda task: build_binned_top(*task[1:], *top, exact_below), upper))
+        tree, firsts = _graft(tree, [task[0] for task in upper], [result[:3] for result in results])
+        for placeholder, first, result in zip([task[0] for task in upper], firsts, results):
+            tasks += [(first + node - 1 if node else placeholder, *task) for node, *task in result[3]]
+        return tree, tasks
 
     def node_cells(self) -> np.ndarray:
         """(n_nodes, 6) cell of every node, lo and hi."""

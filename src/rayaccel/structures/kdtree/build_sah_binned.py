@@ -13,9 +13,9 @@ Eurographics 2007) and tries the planes between bins: prefix sums of the
 the cost is the same as the sweep's, empty bonus included. No sorting is
 needed, so a node costs O(n) instead of O(n) over three sorted event lists.
 
-A node is split this way while it holds at least ``exact_below`` primitives;
-smaller nodes are returned as tasks for the exact sweep, which starts from
-their (clipped) boxes. Straddling primitives are clipped to each child's cell
+A node is split this way while it holds at least ``task_below`` primitives;
+smaller nodes are returned as tasks: for the exact sweep, which starts from
+their (clipped) boxes, or for binning on other threads. Straddling primitives are clipped to each child's cell
 as in the sweep, so splits stay perfect.
 """
 
@@ -131,16 +131,15 @@ def _split_refs(ids, boxes, axis, p, cell, kind, geom, slack):
 
 
 @kernel
-def build_binned_top(ids, boxes, cell, kind, geom, traversal_cost, intersection_cost, empty_bonus, leaf_size,
-                     max_depth, slack, bins, exact_below):
-    """Build the kd-tree's nodes of at least ``exact_below`` primitives with binned SAH splits.
+def build_binned_top(ids, boxes, cell, depth, kind, geom, traversal_cost, intersection_cost, empty_bonus, leaf_size,
+                     max_depth, slack, bins, task_below):
+    """Build the kd-tree's nodes of at least ``task_below`` primitives with binned SAH splits.
 
-    ``ids`` and ``boxes`` (n, 6: lo, hi) are the root's primitives and their bounds
-    within ``cell``. Smaller nodes are left as placeholders and returned as tasks.
-    Returns ``(node_split, node_link, leaf_prims, tasks)`` with ``tasks`` listing
-    ``(node, ids, boxes, cell, depth)``.
+    ``ids`` and ``boxes`` (n, 6: lo, hi) are the primitives of the root, a node at
+    ``depth`` with ``cell``, and their bounds within it. Smaller nodes are left as
+    placeholders and returned as tasks. Returns ``(node_split, node_link, leaf_prims,
+    tasks)`` with ``tasks`` listing ``(node, ids, boxes, cell, depth)``.
     """
-    n_prims = ids.shape[0]
     node_split = np.zeros(64)
     node_link = np.zeros((64, 2), dtype=np.int32)
     leaf_prims = np.empty(16, dtype=np.int32)
@@ -150,12 +149,12 @@ def build_binned_top(ids, boxes, cell, kind, geom, traversal_cost, intersection_
     ends = np.empty((3, bins), dtype=np.int64)
     child_cell = np.empty((2, 6))
     stack = List()
-    stack.append((0, ids, boxes, cell.copy(), 0))
+    stack.append((0, ids, boxes, cell.copy(), depth))
     tasks = List()
     while len(stack) > 0:
         node, ids, boxes, cell, depth = stack.pop()
         n = ids.shape[0]
-        if n < exact_below:
+        if n < task_below:
             tasks.append((node, ids, boxes, cell, depth))
             continue
         best_cost = np.inf
