@@ -21,7 +21,8 @@ from conftest import (
 
 SPATIAL = ["kdtree", "octree", "hgrid", "grid-bvh"]
 VARIANTS = {
-    "kdtree": [{}, {"leaf_size": 1, "empty_bonus": 0.0, "threads": 1}],
+    "kdtree": [{}, {"leaf_size": 1, "empty_bonus": 0.0, "threads": 1, "exact_below": 0},
+               {"exact_below": 64, "bins": 8}],
     "octree": [{}, {"insert": "bbox", "leaf_size": 2}],
     "hgrid": [{}, {"insert": "exact", "mailbox": False, "threshold": 2}],
     "grid-bvh": [{}, {"threshold": 1, "mailbox": False, "density": 2.0}],
@@ -128,9 +129,10 @@ def _overlapping_prims(scene, lo, hi):
     return {int(p) for p in candidates if prim_overlaps_box(scene.kind, scene.geometry, int(p), *center, *half)}
 
 
-def test_kdtree_invariants(closed_sphere_mesh):
+@pytest.mark.parametrize("exact_below", [0, 64, 4096])
+def test_kdtree_invariants(closed_sphere_mesh, exact_below):
     scene = closed_sphere_mesh
-    accel = ra.build(scene, "kdtree")
+    accel = ra.build(scene, "kdtree", exact_below=exact_below)
     kd = accel.kd
     leaf = kd.axis == LEAF
     cells = accel.node_cells()
@@ -251,6 +253,10 @@ def test_bad_options(small_dragon):
         ra.build(small_dragon, "grid-bvh", threshold=0)
     with pytest.raises(TypeError):
         ra.build(small_dragon, "kdtree", buckets=4)
+    with pytest.raises(ValueError, match="bins"):
+        ra.build(small_dragon, "kdtree", bins=1)
+    with pytest.raises(ValueError, match="exact_below"):
+        ra.build(small_dragon, "kdtree", exact_below=-1)
 
 
 def test_statistics_are_consistent(small_dragon):
