@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from ._validate import as_index_triples, as_points, as_positive_int
-from .geometry.bounds import triangle_bounds
+from .geometry.bounds import sphere_bounds, triangle_bounds
 
 __all__ = [
     "TRIANGLE",
@@ -137,8 +137,7 @@ class Spheres:
         return f"Spheres({len(self.centers)})"
 
     def bounds(self) -> PrimitiveBounds:
-        r = self.radii[:, None]
-        return PrimitiveBounds(self.centers - r, self.centers + r, self.centers.copy())
+        return PrimitiveBounds(*sphere_bounds(self.geometry))
 
 
 def random_spheres(n: int, seed: int = 0, fill: float = 0.05) -> Spheres:

@@ -15,8 +15,9 @@ offsets, a second pass writes the references. With ``exact=True`` a primitive
 goes only into the cells it really overlaps (triangle-box SAT, sphere-box
 distance); otherwise into every cell its bounding box overlaps. Both passes
 run in parallel over slabs of cell layers along z, each slab with its own
-bucket of the primitives that reach it, so writes never collide and stay
-within a cache-sized part of the cell arrays. Offsets and references are
+bucket of the primitives that reach it, so writes never collide; the
+primitives are first sorted by cell row, so both passes walk the cell arrays
+nearly in memory order. Offsets and references are
 int32, which halves the memory a large grid touches.
 """
 
@@ -38,6 +39,7 @@ __all__ = ["MAX_CELLS", "CELL_PAD", "REFERENCE_BUDGET", "grid_box", "resolution_
 MAX_CELLS = 1 << 27
 REFERENCE_BUDGET = 64  # a resolution chosen for the user stores at most this many references per primitive
 CELL_PAD = 1e-6  # cells are grown by this fraction of their size when inserting
+ROW_KEYS = 1 << 20  # most distinct keys of the cell-row sort
 
 
 def grid_box(scene_lo: np.ndarray, scene_hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -68,27 +70,78 @@ def cell_span(lo, hi, grid_lo, cell_size, res, axis):
     return max(first, 0), min(last, res[axis] - 1)
 
 
-@kernel
-def _z_slabs(prim_lo, prim_hi, grid_lo, cell_size, res, slab_depth, n_slabs):
-    """Bucket the primitives by the slabs of ``slab_depth`` cell layers their boxes reach."""
+@parallel_kernel
+def _in_row_order(prim_lo, prim_hi, grid_lo, cell_size, res, n_chunks):
+    """The primitives sorted by the first row of cells (y, z) their boxes reach, with the
+    cell ranges ``x0, x1, y0, y1, z0, z1`` of each: a counting sort (in parallel over
+    ``n_chunks`` chunks of primitives, each with its own counts), so that insertion reads
+    primitives and writes cells nearly in memory order instead of jumping across the grid.
+    Grids of more than ``ROW_KEYS`` rows sort by groups of consecutive rows."""
     n_prims = prim_lo.shape[0]
-    spans = np.empty((n_prims, 2), dtype=np.int64)
-    slab_first = np.zeros(n_slabs + 1, dtype=np.int64)
-    for prim in range(n_prims):
-        z0, z1 = cell_span(prim_lo[prim, 2], prim_hi[prim, 2], grid_lo, cell_size, res, 2)
-        spans[prim, 0] = z0 // slab_depth
-        spans[prim, 1] = z1 // slab_depth
-        for s in range(spans[prim, 0], spans[prim, 1] + 1):
-            slab_first[s + 1] += 1
-    for s in range(n_slabs):
-        slab_first[s + 1] += slab_first[s]
-    cursor = slab_first[:-1].copy()
-    slab_prims = np.empty(slab_first[-1], dtype=np.int64)
-    for prim in range(n_prims):
-        for s in range(spans[prim, 0], spans[prim, 1] + 1):
-            slab_prims[cursor[s]] = prim
-            cursor[s] += 1
-    return slab_first, slab_prims
+    rows = res[1] * res[2]
+    shift = 0
+    while (rows - 1) >> shift >= ROW_KEYS:
+        shift += 1
+    n_keys = ((rows - 1) >> shift) + 1
+    chunk = -(-n_prims // n_chunks)
+    key = np.empty(n_prims, dtype=np.int32)
+    counts = np.zeros((n_chunks, n_keys), dtype=np.int64)
+    for c in prange(n_chunks):
+        for prim in range(c * chunk, min(n_prims, (c + 1) * chunk)):
+            y0, _ = cell_span(prim_lo[prim, 1], prim_hi[prim, 1], grid_lo, cell_size, res, 1)
+            z0, _ = cell_span(prim_lo[prim, 2], prim_hi[prim, 2], grid_lo, cell_size, res, 2)
+            key[prim] = (y0 + res[1] * z0) >> shift
+            counts[c, key[prim]] += 1
+    total = 0
+    for k in range(n_keys):
+        for c in range(n_chunks):
+            count = counts[c, k]
+            counts[c, k] = total
+            total += count
+    prims = np.empty(n_prims, dtype=np.int32)
+    ranges = np.empty((n_prims, 6), dtype=np.int32)
+    for c in prange(n_chunks):
+        for prim in range(c * chunk, min(n_prims, (c + 1) * chunk)):
+            k = counts[c, key[prim]]
+            counts[c, key[prim]] = k + 1
+            prims[k] = prim
+            x0, x1, y0, y1, z0, z1 = prim_cells(prim_lo, prim_hi, prim, grid_lo, cell_size, res)
+            ranges[k, 0] = x0
+            ranges[k, 1] = x1
+            ranges[k, 2] = y0
+            ranges[k, 3] = y1
+            ranges[k, 4] = z0
+            ranges[k, 5] = z1
+    return prims, ranges
+
+
+@kernel
+def _slab_scans(ranges, slab_depth, n_slabs):
+    """For each slab of ``slab_depth`` cell layers, the stretch ``first[s]:end[s]`` of the
+    sorted primitives that holds all those reaching it: none after ``end[s]`` starts at or
+    before the slab, none before ``first[s]`` reaches it. As the primitives are sorted by
+    their first layer, the stretch is little more than the slab's own."""
+    n = ranges.shape[0]
+    first = np.full(n_slabs, n, dtype=np.int64)
+    end = np.zeros(n_slabs, dtype=np.int64)
+    for k in range(n):
+        last_slab = ranges[k, 5] // slab_depth
+        first[last_slab] = min(first[last_slab], k)
+        end[ranges[k, 4] // slab_depth] = k + 1
+    for s in range(n_slabs - 2, -1, -1):
+        first[s] = min(first[s], first[s + 1])
+    for s in range(1, n_slabs):
+        end[s] = max(end[s], end[s - 1])
+    return first, end
+
+
+@kernel
+def _running_sum(a):
+    """``a`` replaced by its inclusive prefix sums."""
+    total = 0
+    for i in range(a.shape[0]):
+        total += a[i]
+        a[i] = total
 
 
 @inline_kernel
@@ -129,18 +182,19 @@ def insert_prim(prim, kind, geom, test, grid_lo, cell_size, res, x0, x1, y0, y1,
 
 
 @parallel_kernel
-def _insert(prim_lo, prim_hi, kind, geom, exact, grid_lo, cell_size, res, slab_depth, slab_first, slab_prims,
-            row_end, cell_prims, fill):
+def _insert(prims, ranges, kind, geom, exact, grid_lo, cell_size, res, slab_depth, scan_first, scan_end, row_end,
+            cell_prims, fill):
     """Insert every primitive into the cells it overlaps with :func:`insert_prim` (``fill`` selects
     the pass). Slabs of cell layers run in parallel; each writes only to its own cells."""
-    for slab in prange(slab_first.shape[0] - 1):
+    for slab in prange(scan_first.shape[0]):
         slab_z0 = slab * slab_depth
         slab_z1 = slab_z0 + slab_depth - 1
-        for k in range(slab_first[slab], slab_first[slab + 1]):
-            prim = slab_prims[k]
-            x0, x1, y0, y1, z0, z1 = prim_cells(prim_lo, prim_hi, prim, grid_lo, cell_size, res)
+        for k in range(scan_first[slab], scan_end[slab]):
+            x0, x1, y0, y1, z0, z1 = ranges[k, 0], ranges[k, 1], ranges[k, 2], ranges[k, 3], ranges[k, 4], ranges[k, 5]
+            if z1 < slab_z0 or z0 > slab_z1:
+                continue
             test = exact and (x1 > x0 or y1 > y0 or z1 > z0)
-            insert_prim(prim, kind, geom, test, grid_lo, cell_size, res, x0, x1, y0, y1, max(z0, slab_z0),
+            insert_prim(prims[k], kind, geom, test, grid_lo, cell_size, res, x0, x1, y0, y1, max(z0, slab_z0),
                         min(z1, slab_z1), 0, row_end, cell_prims, fill)
 
 
@@ -175,21 +229,20 @@ def build_grid(bounds, lo: np.ndarray, hi: np.ndarray, kind: int, geom: np.ndarr
     n_cells = int(res.prod())
     slab_depth = max(1, int(res[2]) // (8 * thread_count()))
     n_slabs = -(-int(res[2]) // slab_depth)
-    slab_first, slab_prims = _z_slabs(bounds.lo, bounds.hi, lo, cell_size, res, slab_depth, n_slabs)
-    # cell_first[c + 1] counts cell c, then (prefix sum) holds the end of its row;
-    # the fill pass decrements it to the row's start, and a shift by one
-    # entry turns the ends of the previous rows into the starts.
+    prims, ranges = _in_row_order(bounds.lo, bounds.hi, lo, cell_size, res, thread_count())
+    scan_first, scan_end = _slab_scans(ranges, slab_depth, n_slabs)
+    # cell_first[c] counts cell c, then (prefix sum) holds the end of its row, which the
+    # fill pass moves down to the row's start; the last entry holds the total.
     cell_first = np.zeros(n_cells + 1, dtype=np.int32)
-    _insert(bounds.lo, bounds.hi, kind, geom, exact, lo, cell_size, res, slab_depth, slab_first, slab_prims,
-            cell_first[1:], np.zeros(0, dtype=np.int32), False)
-    n_references = int(cell_first.sum(dtype=np.int64))
+    _insert(prims, ranges, kind, geom, exact, lo, cell_size, res, slab_depth, scan_first, scan_end,
+            cell_first[:-1], np.zeros(0, dtype=np.int32), False)
+    _running_sum(cell_first[:-1])
+    n_references = int(cell_first[-2]) if n_cells else 0
     if n_references >= np.iinfo(np.int32).max:
         raise ValueError(f"the grid would hold {n_references:,} references, more than 2**31; use fewer cells")
-    np.cumsum(cell_first, out=cell_first)
     cell_prims = np.empty(n_references, dtype=np.int32)
-    _insert(bounds.lo, bounds.hi, kind, geom, exact, lo, cell_size, res, slab_depth, slab_first, slab_prims,
-            cell_first[1:], cell_prims, True)
-    cell_first[:-1] = cell_first[1:].copy()
+    _insert(prims, ranges, kind, geom, exact, lo, cell_size, res, slab_depth, scan_first, scan_end,
+            cell_first[:-1], cell_prims, True)
     cell_first[-1] = n_references
     return GridArrays(lo, hi, res, cell_size, cell_first, cell_prims)
 

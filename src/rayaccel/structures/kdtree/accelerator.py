@@ -80,7 +80,7 @@ class KdTree(Accelerator):
         builds faster (bunny 0.81 s instead of 1.40 s, 203k dragon 2.6 s
         instead of 3.1 s, before the binned upper levels) with primary rays as
         fast or 3-5 % faster; against 8, primary rays on the full dragon are
-        12 % faster.
+        13 % faster (4.91 against 4.33 Mrays/s).
     max_depth : int, optional
         Depth limit; default ``round(8 + 1.3 log2 n)`` (pbrt's rule).
     bins : int, default 64
