@@ -20,6 +20,7 @@ from conftest import (
 
 BUILDERS = [m for m in ra.methods() if m.startswith("bvh-")]
 BOUNDS = ["aabb", "sphere", "kdop"]
+VOLUMES = [{"bounds": "aabb"}, {"bounds": "aabb", "width": 2}, {"bounds": "sphere"}, {"bounds": "kdop"}]
 
 
 def test_all_six_builders_are_registered():
@@ -27,13 +28,13 @@ def test_all_six_builders_are_registered():
                              "bvh-binned", "bvh-lbvh"}
 
 
-@pytest.mark.parametrize("bounds", BOUNDS)
+@pytest.mark.parametrize("volume", VOLUMES, ids=lambda v: "-".join(map(str, v.values())))
 @pytest.mark.parametrize("method", BUILDERS)
 @pytest.mark.parametrize("scene_name", ["small_dragon", "spheres"])
-def test_bvh_agrees_with_brute_force(scene_name, method, bounds, request):
+def test_bvh_agrees_with_brute_force(scene_name, method, volume, request):
     scene = request.getfixturevalue(scene_name)
     reference = ra.build(scene, "none")
-    accel = ra.build(scene, method, bounds=bounds)
+    accel = ra.build(scene, method, **volume)
     for origins, directions in (camera_rays(scene, 40), random_rays(scene, 1500), axis_parallel_rays(scene, 600)):
         assert_same_hits(reference.intersect(origins, directions), accel.intersect(origins, directions))
         np.testing.assert_array_equal(accel.occluded(origins, directions), reference.occluded(origins, directions))
@@ -45,52 +46,40 @@ def test_bvh_on_bunny_and_adversarial_rays(bunny, small_dragon, method):
     origins, directions = camera_rays(bunny, 32)
     assert_same_hits(reference.intersect(origins, directions), ra.build(bunny, method).intersect(origins, directions))
     reference = ra.build(small_dragon, "none")
-    accel = ra.build(small_dragon, method, bounds="kdop")
-    origins, directions = vertex_and_edge_rays(small_dragon, 2000)
-    assert_same_hits(reference.intersect(origins, directions), accel.intersect(origins, directions))
     rng = np.random.default_rng(9)
     faces = rng.integers(0, len(small_dragon), 1000)
     corners = small_dragon.geometry[faces].reshape(-1, 3, 3)
     on_surface = np.einsum("nk,nkj->nj", rng.dirichlet([1, 1, 1], 1000), corners)
     directions = rng.normal(size=(1000, 3))
     t_max = rng.uniform(0.0, 0.05, 1000)
-    assert_same_hits(reference.intersect(on_surface, directions, 0.0, t_max),
-                     accel.intersect(on_surface, directions, 0.0, t_max))
+    at_vertices_and_edges = vertex_and_edge_rays(small_dragon, 2000)
+    for volume in ({"bounds": "kdop"}, {"bounds": "aabb"}):
+        accel = ra.build(small_dragon, method, **volume)
+        assert_same_hits(reference.intersect(*at_vertices_and_edges), accel.intersect(*at_vertices_and_edges))
+        assert_same_hits(reference.intersect(on_surface, directions, 0.0, t_max),
+                         accel.intersect(on_surface, directions, 0.0, t_max))
 
 
-def _leaf_ranges(accel):
-    b = accel.bvh
-    leaf = b.node_count > 0
-    return b.node_first[leaf].astype(np.int64), b.node_count[leaf].astype(np.int64)
+def test_wide_nodes_hold_every_leaf_once_inside_their_boxes(small_dragon):
+    from rayaccel.structures.bvh.wide import UNUSED
 
-
-@pytest.mark.parametrize("method", BUILDERS)
-def test_structural_invariants(small_dragon, method):
-    accel = ra.build(small_dragon, method, max_leaf_size=6)
-    b = accel.bvh
-    n = len(small_dragon)
-    # every primitive in exactly one leaf, leaves tile the primitive order
-    assert sorted(b.prim_order.tolist()) == list(range(n))
-    first, count = _leaf_ranges(accel)
-    covered = np.zeros(n, dtype=int)
-    for f, c in zip(first, count):
-        covered[f:f + c] += 1
-    assert (covered == 1).all()
-    assert (count >= 1).all() and (count <= 6).all()
-    # a binary tree: 2 * leaves - 1 nodes, children after parents
-    assert b.n_nodes == 2 * len(first) - 1
-    inner = np.flatnonzero(b.node_count == 0)
-    assert (b.node_first[inner] > inner).all()
-    # child boxes inside parent boxes, leaf boxes around their primitives
-    for node in inner:
-        for child in (b.node_first[node], b.node_first[node] + 1):
-            assert (b.node_box[child, :3] >= b.node_box[node, :3]).all()
-            assert (b.node_box[child, 3:] <= b.node_box[node, 3:]).all()
-    bounds = small_dragon.bounds()
-    for node in np.flatnonzero(b.node_count > 0):
-        prims = b.prim_order[b.node_first[node]:b.node_first[node] + b.node_count[node]]
-        assert (bounds.lo[prims] >= b.node_box[node, :3]).all()
-        assert (bounds.hi[prims] <= b.node_box[node, 3:]).all()
+    accel = ra.build(small_dragon, "bvh-binned", max_leaf_size=2)
+    b, records = accel.bvh, accel.wide
+    links = records.view(np.int32)
+    child, count = links[:, 24:28], links[:, 28:32]
+    inner = count == 0
+    assert sorted(child[inner].tolist()) == list(range(1, len(records)))
+    leaves = count > 0
+    binary_leaves = b.node_count > 0
+    assert sorted(zip(child[leaves], count[leaves])) == sorted(zip(b.node_first[binary_leaves],
+                                                                  b.node_count[binary_leaves]))
+    vertices = accel.geometry.reshape(-1, 3, 3)
+    for node, c in zip(*np.nonzero(leaves)):
+        points = vertices[child[node, c]:child[node, c] + count[node, c]].reshape(-1, 3)
+        assert (points >= records[node, [c, 4 + c, 8 + c]]).all()
+        assert (points <= records[node, [12 + c, 16 + c, 20 + c]]).all()
+    assert ((count >= 0) | (count == UNUSED)).all()
+    assert (inner | leaves).sum(axis=1).min() >= 2
 
 
 @pytest.mark.parametrize("bounds", ["sphere", "kdop"])
@@ -155,6 +144,8 @@ def test_bad_bvh_options(small_dragon):
         ra.build(small_dragon, "bvh-sah", max_leaf_size=2.5)
     with pytest.raises(TypeError):
         ra.build(small_dragon, "bvh-lbvh", bins=8)
+    with pytest.raises(ValueError, match="width"):
+        ra.build(small_dragon, "bvh-binned", width=8)
 
 
 def test_counters(small_dragon):
@@ -171,13 +162,13 @@ def test_counters(small_dragon):
     n=st.integers(1, 80),
     seed=st.integers(0, 2**16),
     method=st.sampled_from(BUILDERS),
-    bounds=st.sampled_from(BOUNDS),
+    volume=st.sampled_from(VOLUMES),
     leaf=st.integers(1, 9),
 )
-def test_random_scenes_property(n, seed, method, bounds, leaf):
+def test_random_scenes_property(n, seed, method, volume, leaf):
     scene = ra.random_spheres(n, seed=seed, fill=0.2)
     origins, directions = random_rays(scene, 200, seed=seed)
     reference = ra.build(scene, "none").intersect(origins, directions)
-    accel = ra.build(scene, method, bounds=bounds, max_leaf_size=leaf)
+    accel = ra.build(scene, method, max_leaf_size=leaf, **volume)
     assert_same_hits(reference, accel.intersect(origins, directions))
     assert (accel.bvh.node_count <= leaf).all()

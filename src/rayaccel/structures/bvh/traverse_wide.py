@@ -1,0 +1,145 @@
+"""Stack traversal of the four-wide BVH (:mod:`.wide`), closest hit and any hit.
+
+At a wide node the ray tests the four child boxes, orders the ones it enters
+before its best hit by entry distance (a five-comparator sorting network on
+registers) and pushes them, farthest first, so the nearest is popped next.
+Leaf children are pushed like inner ones and their primitives tested when
+popped, so primitives are met in front-to-back order too. An entry popped
+beyond the best hit found since it was pushed is skipped. The slab test is
+:func:`.traverse.enter_box`'s, with the same NaN-safe comparisons.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import prange
+
+from ..._jit import inline_kernel, parallel_kernel, thread_id
+from ...geometry.primitive import intersect_prim, ray_setup
+from ..base import is_closer, store_hit
+from .wide import UNUSED
+
+__all__ = ["wide_trace_kernel"]
+
+
+@inline_kernel
+def _enter_child(records, node, c, ox, oy, oz, ix, iy, iz, near_x, near_y, near_z, t_min, t_max):
+    """Entry distance into child ``c``'s box of wide ``node``, inf if the ray misses it;
+    ``near_*`` is the box component of the near face on each axis (lo where the
+    direction is positive: 0, 1, 2; else hi: 3, 4, 5), chosen once per ray."""
+    enter = t_min
+    exit_ = t_max
+    near = (records[node, 4 * near_x + c] - ox) * ix
+    far = (records[node, 4 * (3 - near_x) + c] - ox) * ix
+    if near > enter:
+        enter = near
+    if far < exit_:
+        exit_ = far
+    near = (records[node, 4 * near_y + c] - oy) * iy
+    far = (records[node, 4 * (5 - near_y) + c] - oy) * iy
+    if near > enter:
+        enter = near
+    if far < exit_:
+        exit_ = far
+    near = (records[node, 4 * near_z + c] - oz) * iz
+    far = (records[node, 4 * (7 - near_z) + c] - oz) * iz
+    if near > enter:
+        enter = near
+    if far < exit_:
+        exit_ = far
+    return enter if enter <= exit_ else np.inf
+
+
+@inline_kernel
+def _child_entry(records, links, node, c, ox, oy, oz, ix, iy, iz, near_x, near_y, near_z, t_min, t_max):
+    """``(entry distance, link, count)`` of child ``c``; inf for an unused slot or a miss."""
+    count = links[node, 28 + c]
+    if count == UNUSED:
+        return np.inf, 0, 0
+    return (_enter_child(records, node, c, ox, oy, oz, ix, iy, iz, near_x, near_y, near_z, t_min, t_max),
+            links[node, 24 + c], count)
+
+
+@inline_kernel
+def _in_order(ta, la, ca, tb, lb, cb):
+    if tb < ta:
+        return tb, lb, cb, ta, la, ca
+    return ta, la, ca, tb, lb, cb
+
+
+@inline_kernel
+def _push(stack_link, stack_count, stack_t, tid, sp, t, link, count):
+    if t == np.inf:
+        return sp
+    stack_link[tid, sp] = link
+    stack_count[tid, sp] = count
+    stack_t[tid, sp] = t
+    return sp + 1
+
+
+@parallel_kernel
+def wide_trace_kernel(records, links, prim_order, kind, geom, origins, directions, t_min, t_max, any_hit,
+                      stack_link, stack_count, stack_t, out_t, out_prim, out_u, out_v, work):
+    """Trace every ray through the wide BVH; ``geom`` is in leaf order (``geom[prim_order]``),
+    ``links`` is ``records`` seen as int32. Counters: wide nodes visited, primitive tests."""
+    count_work = work.shape[0] > 0
+    for i in prange(origins.shape[0]):
+        ox, oy, oz = origins[i, 0], origins[i, 1], origins[i, 2]
+        dx, dy, dz = directions[i, 0], directions[i, 1], directions[i, 2]
+        ray = ray_setup(ox, oy, oz, dx, dy, dz)
+        tid = thread_id()
+        ix, iy, iz = 1.0 / dx, 1.0 / dy, 1.0 / dz
+        near_x = 0 if ix >= 0.0 else 3
+        near_y = 1 if iy >= 0.0 else 4
+        near_z = 2 if iz >= 0.0 else 5
+        ray_t_min = t_min[i]
+        best_t = t_max[i]
+        best_prim = -1
+        best_u = 0.0
+        best_v = 0.0
+        n_nodes = 0
+        n_tests = 0
+        node = 0
+        sp = 0
+        while node >= 0:
+            n_nodes += 1
+            t0, l0, c0 = _child_entry(records, links, node, 0, ox, oy, oz, ix, iy, iz, near_x, near_y, near_z,
+                                      ray_t_min, best_t)
+            t1, l1, c1 = _child_entry(records, links, node, 1, ox, oy, oz, ix, iy, iz, near_x, near_y, near_z,
+                                      ray_t_min, best_t)
+            t2, l2, c2 = _child_entry(records, links, node, 2, ox, oy, oz, ix, iy, iz, near_x, near_y, near_z,
+                                      ray_t_min, best_t)
+            t3, l3, c3 = _child_entry(records, links, node, 3, ox, oy, oz, ix, iy, iz, near_x, near_y, near_z,
+                                      ray_t_min, best_t)
+            t0, l0, c0, t1, l1, c1 = _in_order(t0, l0, c0, t1, l1, c1)
+            t2, l2, c2, t3, l3, c3 = _in_order(t2, l2, c2, t3, l3, c3)
+            t0, l0, c0, t2, l2, c2 = _in_order(t0, l0, c0, t2, l2, c2)
+            t1, l1, c1, t3, l3, c3 = _in_order(t1, l1, c1, t3, l3, c3)
+            t1, l1, c1, t2, l2, c2 = _in_order(t1, l1, c1, t2, l2, c2)
+            sp = _push(stack_link, stack_count, stack_t, tid, sp, t3, l3, c3)
+            sp = _push(stack_link, stack_count, stack_t, tid, sp, t2, l2, c2)
+            sp = _push(stack_link, stack_count, stack_t, tid, sp, t1, l1, c1)
+            sp = _push(stack_link, stack_count, stack_t, tid, sp, t0, l0, c0)
+            node = -1
+            while node < 0 and sp > 0:
+                sp -= 1
+                if stack_t[tid, sp] > best_t:
+                    continue
+                count = stack_count[tid, sp]
+                if count == 0:
+                    node = stack_link[tid, sp]
+                    break
+                first = stack_link[tid, sp]
+                for k in range(first, first + count):
+                    n_tests += 1
+                    t, u, v = intersect_prim(kind, geom, k, ray, ray_t_min, best_t)
+                    if is_closer(t, prim_order[k], best_t, best_prim):
+                        best_t, best_prim, best_u, best_v = t, prim_order[k], u, v
+                        if any_hit:
+                            break
+                if any_hit and best_prim >= 0:
+                    sp = 0
+        store_hit(i, best_t, best_prim, best_u, best_v, out_t, out_prim, out_u, out_v)
+        if count_work:
+            work[i, 0] = n_nodes
+            work[i, 1] = n_tests
