@@ -2,10 +2,11 @@
 
 At a wide node the ray tests the four child boxes, orders the ones it enters
 before its best hit by entry distance (a five-comparator sorting network on
-registers) and pushes them, farthest first, so the nearest is popped next.
-Leaf children are pushed like inner ones and their primitives tested when
-popped, so primitives are met in front-to-back order too. An entry popped
-beyond the best hit found since it was pushed is skipped. The slab test is
+registers), pushes all but the nearest, farthest first, and descends into the
+nearest. Leaf children are pushed like inner ones (the nearest too) and their
+primitives tested when popped, so primitives are met in front-to-back order. An entry popped
+beyond the best hit found since it was pushed is skipped. A ray that misses
+the whole tree's box stops there, before testing four boxes. The slab test is
 :func:`.traverse.enter_box`'s, with the same NaN-safe comparisons.
 """
 
@@ -17,6 +18,7 @@ from numba import prange
 from ..._jit import inline_kernel, parallel_kernel, thread_id
 from ...geometry.primitive import intersect_prim, ray_setup
 from ..base import is_closer, store_hit
+from .traverse import enter_box
 from .wide import UNUSED
 
 __all__ = ["wide_trace_kernel"]
@@ -78,10 +80,12 @@ def _push(stack_link, stack_count, stack_t, tid, sp, t, link, count):
 
 
 @parallel_kernel
-def wide_trace_kernel(records, links, prim_order, kind, geom, origins, directions, t_min, t_max, any_hit,
+def wide_trace_kernel(root_box, records, links, prim_order, kind, geom, origins, directions, t_min, t_max, any_hit,
                       stack_link, stack_count, stack_t, out_t, out_prim, out_u, out_v, work):
     """Trace every ray through the wide BVH; ``geom`` is in leaf order (``geom[prim_order]``),
-    ``links`` is ``records`` seen as int32. Counters: wide nodes visited, primitive tests."""
+    ``links`` is ``records`` seen as int32, and row 0 of ``root_box`` (a binary node record)
+    the whole tree's box, which a ray must enter before the root's four children are
+    tested. Counters: wide nodes visited, primitive tests."""
     count_work = work.shape[0] > 0
     for i in prange(origins.shape[0]):
         ox, oy, oz = origins[i, 0], origins[i, 1], origins[i, 2]
@@ -101,6 +105,8 @@ def wide_trace_kernel(records, links, prim_order, kind, geom, origins, direction
         n_tests = 0
         node = 0
         sp = 0
+        if enter_box(root_box, 0, ox, oy, oz, ix, iy, iz, near_x, near_y, near_z, ray_t_min, best_t) == np.inf:
+            node = -1
         while node >= 0:
             n_nodes += 1
             t0, l0, c0 = _child_entry(records, links, node, 0, ox, oy, oz, ix, iy, iz, near_x, near_y, near_z,
@@ -119,8 +125,12 @@ def wide_trace_kernel(records, links, prim_order, kind, geom, origins, direction
             sp = _push(stack_link, stack_count, stack_t, tid, sp, t3, l3, c3)
             sp = _push(stack_link, stack_count, stack_t, tid, sp, t2, l2, c2)
             sp = _push(stack_link, stack_count, stack_t, tid, sp, t1, l1, c1)
-            sp = _push(stack_link, stack_count, stack_t, tid, sp, t0, l0, c0)
             node = -1
+            if t0 != np.inf:
+                if c0 == 0:
+                    node = l0
+                else:
+                    sp = _push(stack_link, stack_count, stack_t, tid, sp, t0, l0, c0)
             while node < 0 and sp > 0:
                 sp -= 1
                 if stack_t[tid, sp] > best_t:

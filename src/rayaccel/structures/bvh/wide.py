@@ -83,6 +83,27 @@ def _collapse(node_box, node_first, node_count):
     return slots[:n_wide], child_wide[:n_wide]
 
 
+@kernel
+def _pack(slots, child_wide, node_box, node_first, node_count, records, links):
+    for wide in range(slots.shape[0]):
+        for c in range(WIDTH):
+            binary = slots[wide, c]
+            if binary < 0:
+                links[wide, 28 + c] = UNUSED
+                continue
+            for j in range(6):
+                exact = node_box[binary, j]
+                rounded = np.float32(exact)
+                if j < 3 and rounded > exact:
+                    rounded = np.nextafter(rounded, np.float32(-np.inf))
+                elif j >= 3 and rounded < exact:
+                    rounded = np.nextafter(rounded, np.float32(np.inf))
+                records[wide, 4 * j + c] = rounded
+            inner = node_count[binary] == 0
+            links[wide, 24 + c] = child_wide[wide, c] if inner else node_first[binary]
+            links[wide, 28 + c] = 0 if inner else node_count[binary]
+
+
 def wide_records(node_box: np.ndarray, node_first: np.ndarray, node_count: np.ndarray) -> np.ndarray:
     """The four-wide records (see the module docstring) of a binary BVH."""
     slots, child_wide = _collapse(node_box, node_first, node_count)
@@ -90,16 +111,5 @@ def wide_records(node_box: np.ndarray, node_first: np.ndarray, node_count: np.nd
     raw = np.zeros(n_wide * 128 + 64, dtype=np.uint8)
     offset = (-raw.ctypes.data) % 64
     records = raw[offset:offset + n_wide * 128].view(np.float32).reshape(n_wide, 32)
-    used = slots >= 0
-    binary = np.where(used, slots, 0)
-    for j in range(6):
-        exact = node_box[binary, j]
-        rounded = exact.astype(np.float32)
-        off = rounded > exact if j < 3 else rounded < exact
-        rounded = np.where(off, np.nextafter(rounded, np.float32(-np.inf if j < 3 else np.inf)), rounded)
-        records[:, 4 * j:4 * j + 4] = np.where(used, rounded, 0.0)
-    links = records.view(np.int32)
-    inner = used & (node_count[binary] == 0)
-    links[:, 24:28] = np.where(inner, child_wide, np.where(used, node_first[binary], 0))
-    links[:, 28:32] = np.where(used, np.where(inner, 0, node_count[binary]), UNUSED)
+    _pack(slots, child_wide, node_box, node_first, node_count, records, records.view(np.int32))
     return records
