@@ -18,8 +18,12 @@ raising, which the slab and DDA set-up rely on.
 from __future__ import annotations
 
 import numba
+from llvmlite import ir
+from numba import types
+from numba.core import cgutils
+from numba.extending import intrinsic
 
-__all__ = ["kernel", "inline_kernel", "parallel_kernel", "set_threads", "thread_count", "thread_id"]
+__all__ = ["kernel", "inline_kernel", "parallel_kernel", "set_threads", "thread_count", "thread_id", "prefetch"]
 
 _COMMON = dict(cache=True, nogil=True, error_model="numpy", fastmath=False)
 
@@ -56,3 +60,26 @@ def thread_count() -> int:
 
 
 thread_id = numba.get_thread_id
+
+
+@intrinsic
+def prefetch(typingctx, array, row, column):
+    """Ask the CPU to start loading the cache line of ``array[row, column]`` (a 2-D array)
+    without waiting for it (LLVM's ``llvm.prefetch``, read, high locality): for memory a
+    traversal will read a few steps later, such as the nodes it pushes on its stack."""
+    signature = types.void(array, row, column)
+
+    def codegen(context, builder, sig, args):
+        array_type = sig.args[0]
+        view = context.make_array(array_type)(context, builder, args[0])
+        row_index = context.cast(builder, args[1], sig.args[1], types.intp)
+        column_index = context.cast(builder, args[2], sig.args[2], types.intp)
+        pointer = cgutils.get_item_pointer(context, builder, array_type, view, [row_index, column_index])
+        byte_pointer = builder.bitcast(pointer, ir.IntType(8).as_pointer())
+        int32 = ir.IntType(32)
+        function_type = ir.FunctionType(ir.VoidType(), [byte_pointer.type, int32, int32, int32])
+        function = cgutils.get_or_insert_function(builder.module, function_type, "llvm.prefetch.p0")
+        builder.call(function, [byte_pointer, int32(0), int32(3), int32(1)])
+        return context.get_dummy_value()
+
+    return signature, codegen

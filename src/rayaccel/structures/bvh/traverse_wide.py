@@ -15,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 from numba import prange
 
-from ..._jit import inline_kernel, parallel_kernel, thread_id
+from ..._jit import inline_kernel, parallel_kernel, prefetch, thread_id
 from ...geometry.primitive import intersect_prim, ray_setup
 from ..base import is_closer, store_hit
 from .traverse import enter_box
@@ -70,9 +70,16 @@ def _in_order(ta, la, ca, tb, lb, cb):
 
 
 @inline_kernel
-def _push(stack_link, stack_count, stack_t, tid, sp, t, link, count):
+def _push(records, geom, stack_link, stack_count, stack_t, tid, sp, t, link, count):
+    """Push a child the ray enters at ``t`` (none when ``t`` is inf) and prefetch what popping
+    it will read: its record's two cache lines, or its first primitive."""
     if t == np.inf:
         return sp
+    if count == 0:
+        prefetch(records, link, 0)
+        prefetch(records, link, 16)
+    else:
+        prefetch(geom, link, 0)
     stack_link[tid, sp] = link
     stack_count[tid, sp] = count
     stack_t[tid, sp] = t
@@ -122,15 +129,15 @@ def wide_trace_kernel(root_box, records, links, prim_order, kind, geom, origins,
             t0, l0, c0, t2, l2, c2 = _in_order(t0, l0, c0, t2, l2, c2)
             t1, l1, c1, t3, l3, c3 = _in_order(t1, l1, c1, t3, l3, c3)
             t1, l1, c1, t2, l2, c2 = _in_order(t1, l1, c1, t2, l2, c2)
-            sp = _push(stack_link, stack_count, stack_t, tid, sp, t3, l3, c3)
-            sp = _push(stack_link, stack_count, stack_t, tid, sp, t2, l2, c2)
-            sp = _push(stack_link, stack_count, stack_t, tid, sp, t1, l1, c1)
+            sp = _push(records, geom, stack_link, stack_count, stack_t, tid, sp, t3, l3, c3)
+            sp = _push(records, geom, stack_link, stack_count, stack_t, tid, sp, t2, l2, c2)
+            sp = _push(records, geom, stack_link, stack_count, stack_t, tid, sp, t1, l1, c1)
             node = -1
             if t0 != np.inf:
                 if c0 == 0:
                     node = l0
                 else:
-                    sp = _push(stack_link, stack_count, stack_t, tid, sp, t0, l0, c0)
+                    sp = _push(records, geom, stack_link, stack_count, stack_t, tid, sp, t0, l0, c0)
             while node < 0 and sp > 0:
                 sp -= 1
                 if stack_t[tid, sp] > best_t:
