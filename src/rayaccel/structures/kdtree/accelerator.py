@@ -10,7 +10,7 @@ from functools import partial
 import numba
 import numpy as np
 
-from ..._jit import thread_count
+from ..._jit import kernel, thread_count
 from ..._validate import check_number
 from ...stats import box_area, surface_area_stats
 from ..base import Accelerator
@@ -26,6 +26,28 @@ __all__ = ["KdTree"]
 _MAX_PRIMS = 1 << 28  # leaf counts are stored as count << 2 in an int32
 
 
+@kernel
+def _graft_nodes(node_split, node_link, placeholders, splits, links, counts, refs, n_refs, out_split, out_link):
+    """The node arrays of :func:`_graft`: the tree's nodes, then each subtree's nodes but its
+    root (which goes to its placeholder), with links moved to the new numbering."""
+    n_tree = node_split.shape[0]
+    out_split[:n_tree] = node_split
+    out_link[:n_tree] = node_link
+    source = 0
+    target = n_tree
+    ref_first = n_refs
+    for s in range(counts.shape[0]):
+        for j in range(counts[s]):
+            row = placeholders[s] if j == 0 else target + j - 1
+            out_split[row] = splits[source + j]
+            leaf = (links[source + j, 1] & 3) == LEAF
+            out_link[row, 0] = links[source + j, 0] + (ref_first if leaf else target - 1)
+            out_link[row, 1] = links[source + j, 1]
+        source += counts[s]
+        target += counts[s] - 1
+        ref_first += refs[s]
+
+
 def _graft(tree, placeholders, subtrees):
     """Put each subtree ``(node_split, node_link, leaf_prims)`` in place of its placeholder
     leaf in ``tree`` (the same three arrays): the subtree's root takes the placeholder's
@@ -34,22 +56,17 @@ def _graft(tree, placeholders, subtrees):
     node_split, node_link, leaf_prims = tree
     if not subtrees:
         return tree, np.zeros(0, dtype=np.int64)
-    counts = np.array([len(split) for split, _, _ in subtrees])
-    refs = np.array([len(leaves) for _, _, leaves in subtrees])
+    counts = np.array([len(split) for split, _, _ in subtrees], dtype=np.int64)
+    refs = np.array([len(leaves) for _, _, leaves in subtrees], dtype=np.int64)
+    n_nodes = len(node_split) + int(counts.sum()) - len(counts)
+    out_split = np.empty(n_nodes)
+    out_link = np.empty((n_nodes, 2), dtype=np.int32)
+    _graft_nodes(node_split, node_link, np.asarray(placeholders, dtype=np.int64),
+                 np.concatenate([split for split, _, _ in subtrees]), np.concatenate([link for _, link, _ in subtrees]),
+                 counts, refs, len(leaf_prims), out_split, out_link)
     firsts = len(node_split) + np.cumsum(counts - 1) - (counts - 1)
-    ref_firsts = len(leaf_prims) + np.cumsum(refs) - refs
-    splits = np.concatenate([split for split, _, _ in subtrees])
-    links = np.concatenate([link for _, link, _ in subtrees])
-    leaf = (links[:, 1] & 3) == LEAF
-    links[:, 0] += np.where(leaf, np.repeat(ref_firsts, counts), np.repeat(firsts - 1, counts))
-    roots = np.cumsum(counts) - counts
-    node_split[placeholders] = splits[roots]
-    node_link[placeholders] = links[roots]
-    rest = np.ones(len(splits), dtype=bool)
-    rest[roots] = False
-    tree = (np.concatenate((node_split, splits[rest])), np.concatenate((node_link, links[rest])),
-            np.concatenate([leaf_prims] + [leaves for _, _, leaves in subtrees]))
-    return tree, firsts
+    leaves = np.concatenate([leaf_prims] + [leaves for _, _, leaves in subtrees])
+    return (out_split, out_link, leaves), firsts
 
 
 def _exact_subtree(ids, boxes, cell, depth, *params):
