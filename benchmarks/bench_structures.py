@@ -5,9 +5,10 @@ For each scene and method: build seconds and closest-hit Mrays/s on primary
 rays, any-hit Mrays/s on primary rays, and the ratio of each to Embree's on 2
 threads (embreex queries run on one thread; the 2-thread figure splits the rays
 over two Python threads, as embreex releases the GIL) and, for closest hit, to
-the best rayaccel BVH in the run. Brute force is timed on
-a subset of the rays. Figures vary by +-30% on a shared machine: read the
-ratios, not the absolutes.
+the best rayaccel BVH in the run. Every figure is the median of five rounds in
+which all structures and competitors take turns, so that all of them meet the
+same phases of a noisy machine. Brute force is timed on a subset of the rays.
+Figures vary by +-30% on a shared machine: read the ratios, not the absolutes.
 
     python benchmarks/bench_structures.py [--scenes bunny dragon] [--methods grid bvh-binned] [--side 1024]
 """
@@ -18,6 +19,7 @@ import argparse
 import sys
 import time
 from concurrent.futures import ThreadPoolExecutor
+from functools import partial
 
 import numpy as np
 from rich.console import Console
@@ -74,34 +76,65 @@ class Open3dScene:
         return self.scene.cast_rays(rays, nthreads=threads)["primitive_ids"].numpy()
 
 
-def _competitor_rows(name, label, make, scene, rays, threads_list) -> list[dict]:
-    rows = []
-    competitor = make(scene)
-    for threads in threads_list:
-        row = {"scene": name, "method": f"{label}, {threads} thread{'s' * (threads > 1)}",
-               "build": median_seconds(lambda: make(scene), repeats=3)}
-        for ray_label, (o, d) in rays.items():
-            row[ray_label] = len(o) / median_seconds(lambda: competitor.query(o, d, threads)) / 1e6
-        o, d = rays["primary"]
-        row["any-hit"] = len(o) / median_seconds(lambda: competitor.query(o, d, threads, "OCCLUDED")) / 1e6
-        rows.append(row)
-    return rows
+ROUNDS = 5
+
+
+def _queries(intersect, occluded, rays) -> dict:
+    """The timed calls of one subject: closest hit on each ray set, any hit on primary rays."""
+    calls = {label: (len(o), lambda o=o, d=d: intersect(o, d)) for label, (o, d) in rays.items()}
+    o, d = rays["primary"]
+    calls["any-hit"] = (len(o), lambda: occluded(o, d))
+    return calls
+
+
+def _interleaved_rates(subjects: list[dict], console: Console) -> None:
+    """Mrays/s of every subject's queries, the median of ``ROUNDS`` rounds in which every
+    subject runs every query once in turn, so that all of them see the same phases of a
+    noisy machine; written into each subject's row."""
+    for subject in subjects:
+        for _, call in subject["calls"].values():
+            call()
+    seconds = {(i, label): [] for i, subject in enumerate(subjects) for label in subject["calls"]}
+    for round_ in range(ROUNDS):
+        console.log(f"round {round_ + 1} of {ROUNDS}")
+        for i, subject in enumerate(subjects):
+            for label, (_, call) in subject["calls"].items():
+                start = time.perf_counter()
+                call()
+                seconds[i, label].append(time.perf_counter() - start)
+    for i, subject in enumerate(subjects):
+        for label, (n_rays, _) in subject.pop("calls").items():
+            subject[label] = n_rays / float(np.median(seconds[i, label])) / 1e6
 
 
 def bench_scene(name: str, methods: list[str], side: int, competitors: set[str], console: Console) -> list[dict]:
     scene = ra.load_scene(name)
     rays = {"primary": primary_rays(scene, side), "incoherent": incoherent_rays(scene, side * side)}
-    rows = []
+    subjects = []
     for method in methods:
         accel = ra.build(scene, method)
-        build = median_seconds(lambda: ra.build(scene, method), repeats=3)
-        row = {"scene": name, "method": f"rayaccel {method}", "build": build}
-        for label, (o, d) in rays.items():
-            row[label] = len(o) / median_seconds(lambda: accel.intersect(o, d)) / 1e6
-        o, d = rays["primary"]
-        row["any-hit"] = len(o) / median_seconds(lambda: accel.occluded(o, d)) / 1e6
-        rows.append(row)
+        subjects.append({"scene": name, "method": f"rayaccel {method}",
+                         "build": median_seconds(lambda: ra.build(scene, method), repeats=3),
+                         "calls": _queries(accel.intersect, accel.occluded, rays)})
     reference_hits = accel.intersect(*rays["primary"]).prim
+    if "embreex" in competitors:
+        embree = EmbreeScene(scene)
+        agreement = np.mean(embree.query(*rays["primary"], 1) == reference_hits)
+        console.print(f"{name}: Embree and rayaccel report the same primitive for {agreement:.2%} of primary rays "
+                      "(float32 vs float64)")
+        build = median_seconds(lambda: EmbreeScene(scene), repeats=3)
+        for threads in (1, 2):
+            subjects.append({"scene": name, "method": f"Embree (embreex), {threads} thread{'s' * (threads > 1)}",
+                             "build": build, "calls": _queries(partial(embree.query, threads=threads),
+                                                               partial(embree.query, threads=threads, kind="OCCLUDED"),
+                                                               rays)})
+    if "open3d" in competitors:
+        open3d = Open3dScene(scene)
+        subjects.append({"scene": name, "method": "Open3D RaycastingScene, 2 threads",
+                         "build": median_seconds(lambda: Open3dScene(scene), repeats=3),
+                         "calls": _queries(partial(open3d.query, threads=2),
+                                           partial(open3d.query, threads=2, kind="OCCLUDED"), rays)})
+    _interleaved_rates(subjects, console)
 
     brute = ra.build(scene, "none")
     subset = max(64, int(2e9 / len(scene) / 50))
@@ -109,16 +142,7 @@ def bench_scene(name: str, methods: list[str], side: int, competitors: set[str],
     for label, (o, d) in rays.items():
         row[label] = subset / median_seconds(lambda: brute.intersect(o[:subset], d[:subset]), repeats=1) / 1e6
     row["any-hit"] = subset / median_seconds(lambda: brute.occluded(o[:subset], d[:subset]), repeats=1) / 1e6
-    rows.append(row)
-
-    if "embreex" in competitors:
-        agreement = np.mean(EmbreeScene(scene).query(*rays["primary"], 1) == reference_hits)
-        console.print(f"{name}: Embree and rayaccel report the same primitive for {agreement:.2%} of primary rays "
-                      "(float32 vs float64)")
-        rows += _competitor_rows(name, "Embree (embreex)", EmbreeScene, scene, rays, (1, 2))
-    if "open3d" in competitors:
-        rows += _competitor_rows(name, "Open3D RaycastingScene", Open3dScene, scene, rays, (2,))
-    return rows
+    return subjects + [row]
 
 
 def main() -> None:

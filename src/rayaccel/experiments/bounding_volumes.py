@@ -36,7 +36,7 @@ from .bvh_builders import incoherent_rays
 __all__ = ["VOLUMES", "VolumeRow", "run", "write_report"]
 
 VOLUMES = {
-    "aabb": {"bounds": "aabb"},
+    "aabb": {"bounds": "aabb", "width": 2},  # the binary walk over the same tree as the other volumes
     "sphere (Ritter over primitives)": {"bounds": "sphere", "sphere_fit": "primitives"},
     "sphere (over child spheres)": {"bounds": "sphere", "sphere_fit": "children"},
     "14-DOP": {"bounds": "kdop"},
