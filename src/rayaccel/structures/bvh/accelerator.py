@@ -116,8 +116,8 @@ class BoundingVolumeHierarchy(Accelerator):
         rows = numba.config.NUMBA_NUM_THREADS
         if self.wide is not None:
             depth = 3 * self.max_depth + 8
-            wide_trace_kernel(b.node_records, self.wide, self.wide.view(np.int32), b.prim_order, self.scene.kind, self.geometry,
-                              batch.origins, batch.directions, batch.t_min, batch.t_max, any_hit,
+            wide_trace_kernel(b.node_records, self.wide, self.wide.view(np.int32), b.prim_order, self.scene.kind,
+                              self.geometry, batch.origins, batch.directions, batch.t_min, batch.t_max, any_hit,
                               np.empty((rows, depth), dtype=np.int32), np.empty((rows, depth), dtype=np.int32),
                               np.empty((rows, depth)), t, prim, u, v, work)
             return

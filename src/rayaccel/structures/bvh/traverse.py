@@ -25,7 +25,8 @@ from ...geometry.primitive import intersect_prim, ray_setup
 from ...geometry.sphere import sphere_span
 from ..base import is_closer, store_hit
 
-__all__ = ["BOX", "SPHERE_VOLUME", "KDOP", "KDOP_NORMALS", "enter_box", "volume_ray_setup", "bvh_trace_kernel"]
+__all__ = ["BOX", "SPHERE_VOLUME", "KDOP", "KDOP_NORMALS", "tighten", "enter_box", "volume_ray_setup",
+           "bvh_trace_kernel"]
 
 BOX = 0
 SPHERE_VOLUME = 1
@@ -45,7 +46,9 @@ def _slab(lo, hi, o, inv, enter, exit_):
 
 
 @inline_kernel
-def _near_far(near, far, enter, exit_):
+def tighten(near, far, enter, exit_):
+    """The span ``enter..exit_`` cut to one slab's ``near..far``; a NaN (0 * inf for an origin
+    on a slab plane) never replaces a bound."""
     if near > enter:
         enter = near
     if far < exit_:
@@ -57,9 +60,9 @@ def _near_far(near, far, enter, exit_):
 def enter_box(box, node, ox, oy, oz, ix, iy, iz, near_x, near_y, near_z, t_min, t_max):
     """Slab test with the near face of each axis chosen once per ray (``near_* = 3`` where the
     direction is negative), as in pbrt's ``dirIsNeg``: no swap per node."""
-    enter, exit_ = _near_far((box[node, near_x] - ox) * ix, (box[node, 3 - near_x] - ox) * ix, t_min, t_max)
-    enter, exit_ = _near_far((box[node, near_y] - oy) * iy, (box[node, 5 - near_y] - oy) * iy, enter, exit_)
-    enter, exit_ = _near_far((box[node, near_z] - oz) * iz, (box[node, 7 - near_z] - oz) * iz, enter, exit_)
+    enter, exit_ = tighten((box[node, near_x] - ox) * ix, (box[node, 3 - near_x] - ox) * ix, t_min, t_max)
+    enter, exit_ = tighten((box[node, near_y] - oy) * iy, (box[node, 5 - near_y] - oy) * iy, enter, exit_)
+    enter, exit_ = tighten((box[node, near_z] - oz) * iz, (box[node, 7 - near_z] - oz) * iz, enter, exit_)
     return enter if enter <= exit_ else np.inf
 
 

@@ -18,7 +18,7 @@ from numba import prange
 from ..._jit import inline_kernel, parallel_kernel, prefetch, thread_id
 from ...geometry.primitive import intersect_prim, ray_setup
 from ..base import is_closer, store_hit
-from .traverse import enter_box
+from .traverse import enter_box, tighten
 from .wide import UNUSED
 
 __all__ = ["wide_trace_kernel"]
@@ -29,26 +29,12 @@ def _enter_child(records, node, c, ox, oy, oz, ix, iy, iz, near_x, near_y, near_
     """Entry distance into child ``c``'s box of wide ``node``, inf if the ray misses it;
     ``near_*`` is the box component of the near face on each axis (lo where the
     direction is positive: 0, 1, 2; else hi: 3, 4, 5), chosen once per ray."""
-    enter = t_min
-    exit_ = t_max
-    near = (records[node, 4 * near_x + c] - ox) * ix
-    far = (records[node, 4 * (3 - near_x) + c] - ox) * ix
-    if near > enter:
-        enter = near
-    if far < exit_:
-        exit_ = far
-    near = (records[node, 4 * near_y + c] - oy) * iy
-    far = (records[node, 4 * (5 - near_y) + c] - oy) * iy
-    if near > enter:
-        enter = near
-    if far < exit_:
-        exit_ = far
-    near = (records[node, 4 * near_z + c] - oz) * iz
-    far = (records[node, 4 * (7 - near_z) + c] - oz) * iz
-    if near > enter:
-        enter = near
-    if far < exit_:
-        exit_ = far
+    enter, exit_ = tighten((records[node, 4 * near_x + c] - ox) * ix, (records[node, 4 * (3 - near_x) + c] - ox) * ix,
+                           t_min, t_max)
+    enter, exit_ = tighten((records[node, 4 * near_y + c] - oy) * iy, (records[node, 4 * (5 - near_y) + c] - oy) * iy,
+                           enter, exit_)
+    enter, exit_ = tighten((records[node, 4 * near_z + c] - oz) * iz, (records[node, 4 * (7 - near_z) + c] - oz) * iz,
+                           enter, exit_)
     return enter if enter <= exit_ else np.inf
 
 

@@ -27,7 +27,7 @@ from numba.typed import List
 from ..._jit import inline_kernel, kernel
 from ...geometry.clip import CLIP_VERTICES, split_clipped_bounds
 from ..build_arrays import reserve_rows
-from .layout import LEAF
+from .layout import LEAF, add_children, split_cell
 
 __all__ = ["build_binned_top"]
 
@@ -171,17 +171,8 @@ def build_binned_top(ids, boxes, cell, depth, kind, geom, traversal_cost, inters
             n_refs += n
             continue
         left_ids, left_boxes, right_ids, right_boxes = _split_refs(ids, boxes, axis, p, cell, kind, geom, slack)
-        child_cell[0] = cell
-        child_cell[1] = cell
-        child_cell[0, axis + 3] = p
-        child_cell[1, axis] = p
-        child = n_nodes
-        n_nodes += 2
-        node_split = reserve_rows(node_split, n_nodes)
-        node_link = reserve_rows(node_link, n_nodes)
-        node_split[node] = p
-        node_link[node, 0] = child
-        node_link[node, 1] = axis
+        split_cell(cell, axis, p, child_cell)
+        node_split, node_link, child, n_nodes = add_children(node_split, node_link, n_nodes, node, p, axis)
         stack.append((child + 1, right_ids, right_boxes, child_cell[1].copy(), depth + 1))
         stack.append((child, left_ids, left_boxes, child_cell[0].copy(), depth + 1))
     return node_split[:n_nodes].copy(), node_link[:n_nodes].copy(), leaf_prims[:n_refs].copy(), tasks

@@ -42,7 +42,7 @@ from ..._jit import inline_kernel, kernel
 from ...geometry.clip import CLIP_VERTICES, split_clipped_bounds
 from ..build_arrays import reserve_rows
 from .events import END, PLANAR, START, event_before, sort_events
-from .layout import LEAF
+from .layout import LEAF, add_children, split_cell
 
 __all__ = ["build_subtree"]
 
@@ -227,8 +227,8 @@ def _distribute_axis(pos, code, span, flags, new_pos, new_code, fill, child_span
     for side, o in ((0, o0), (1, o1)):
         first = child_span[side, b, 0]
         n_new = fill[side, b]
-        child_span[side, b, 1] = _merge_clipped(pos, code, first, o - first - n_new, new_pos[side, b], new_code[side, b],
-                                                n_new)
+        kept = o - first - n_new
+        child_span[side, b, 1] = _merge_clipped(pos, code, first, kept, new_pos[side, b], new_code[side, b], n_new)
 
 
 @kernel
@@ -344,10 +344,7 @@ def build_subtree(pos, code, span, n_prims, cell, depth, kind, geom, n_scene_pri
             if new_pos.shape[2] < 2 * n_straddling:
                 new_pos = np.empty((2, 3, 4 * n_straddling))
                 new_code = np.empty((2, 3, 4 * n_straddling), dtype=np.int64)
-            for side in range(2):
-                _copy_cell(child_cell[side], cell)
-            child_cell[0, axis + 3] = best_pos
-            child_cell[1, axis] = best_pos
+            split_cell(cell, axis, best_pos, child_cell)
             kept_left, kept_right = _clip_straddling(straddling, n_straddling, cell, axis, best_pos, kind, geom, slack,
                                                      poly, boxes, new_pos, new_code, fill)
             slot = top
@@ -358,13 +355,7 @@ def build_subtree(pos, code, span, n_prims, cell, depth, kind, geom, n_scene_pri
             arena_pos = reserve_rows(arena_pos, slot)
             arena_code = reserve_rows(arena_code, slot)
             _distribute(arena_pos, arena_code, span, flags, new_pos, new_code, fill, child_span)
-            child = n_nodes
-            n_nodes += 2
-            node_split = reserve_rows(node_split, n_nodes)
-            node_link = reserve_rows(node_link, n_nodes)
-            node_split[node] = best_pos
-            node_link[node, 0] = child
-            node_link[node, 1] = axis
+            node_split, node_link, child, n_nodes = add_children(node_split, node_link, n_nodes, node, best_pos, axis)
             task_node[sp] = child + 1
             _copy_span(task_span[sp], child_span[1])
             task_n[sp] = n_right + kept_right

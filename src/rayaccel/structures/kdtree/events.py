@@ -14,7 +14,8 @@ import numpy as np
 
 from ..._jit import inline_kernel, kernel
 
-__all__ = ["END", "PLANAR", "START", "order_ties", "axis_events", "node_events", "root_events", "event_before", "sort_events"]
+__all__ = ["END", "PLANAR", "START", "order_ties", "axis_events", "node_events", "root_events", "event_before",
+           "sort_events"]
 
 END = 0
 PLANAR = 1

@@ -29,9 +29,10 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ..._jit import kernel
+from ..._jit import inline_kernel, kernel
+from ..build_arrays import reserve_rows
 
-__all__ = ["LEAF", "KdTreeArrays", "node_cells"]
+__all__ = ["LEAF", "KdTreeArrays", "node_cells", "add_children", "split_cell"]
 
 LEAF = 3
 
@@ -82,3 +83,26 @@ def node_cells(lo, hi, node_split, node_link):
         depth[below] = depth[node] + 1
         depth[below + 1] = depth[node] + 1
     return cells, depth
+
+
+@inline_kernel
+def add_children(node_split, node_link, n_nodes, node, position, axis):
+    """Make ``node`` an inner node split at ``position`` on ``axis`` with two new children,
+    appended to the growable node arrays. Returns the arrays, the left child's index and
+    the new node count."""
+    node_split = reserve_rows(node_split, n_nodes + 2)
+    node_link = reserve_rows(node_link, n_nodes + 2)
+    node_split[node] = position
+    node_link[node, 0] = n_nodes
+    node_link[node, 1] = axis
+    return node_split, node_link, n_nodes, n_nodes + 2
+
+
+@inline_kernel
+def split_cell(cell, axis, position, child_cell):
+    """``child_cell[0]`` and ``child_cell[1]``: ``cell`` below and above ``position`` on ``axis``."""
+    for side in range(2):
+        for c in range(6):
+            child_cell[side, c] = cell[c]
+    child_cell[0, axis + 3] = position
+    child_cell[1, axis] = position
