@@ -4,8 +4,11 @@ At a wide node the ray tests the four child boxes, orders the ones it enters
 before its best hit by entry distance (a five-comparator sorting network on
 registers), pushes all but the nearest, farthest first, and descends into the
 nearest. Leaf children are pushed like inner ones (the nearest too) and their
-primitives tested when popped, so primitives are met in front-to-back order. An entry popped
-beyond the best hit found since it was pushed is skipped. A ray that misses
+primitives tested when popped, so primitives are met in front-to-back order.
+Whatever is pushed is prefetched, so its memory arrives while the ray works
+on nearer children (measured on the dragon's incoherent rays: +20-25 %
+against the binary walk, where the wide layout alone gave +5-14 %). An entry
+popped beyond the best hit found since it was pushed is skipped. A ray that misses
 the whole tree's box stops there, before testing four boxes. The slab test is
 :func:`.traverse.enter_box`'s, with the same NaN-safe comparisons.
 """
