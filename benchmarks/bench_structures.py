@@ -30,6 +30,8 @@ from _common import ensure_competitors, incoherent_rays, median_seconds, primary
 
 import rayaccel as ra  # noqa: E402
 
+ROUNDS = 5  # timing rounds; each subject's figure is its median
+
 
 class EmbreeScene:
     """embreex with float32 rays, on one thread or split over several Python threads."""
@@ -74,9 +76,6 @@ class Open3dScene:
         if kind == "OCCLUDED":
             return self.scene.test_occlusions(rays, nthreads=threads).numpy()
         return self.scene.cast_rays(rays, nthreads=threads)["primitive_ids"].numpy()
-
-
-ROUNDS = 5
 
 
 def _queries(intersect, occluded, rays) -> dict:

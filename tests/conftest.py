@@ -82,3 +82,13 @@ def assert_same_hits(reference, hits):
     np.testing.assert_allclose(hits.u[hit], reference.u[hit], rtol=1e-9, atol=1e-12)
     np.testing.assert_allclose(hits.v[hit], reference.v[hit], rtol=1e-9, atol=1e-12)
     assert np.isinf(hits.t[~hit]).all()
+
+
+def assert_one_and_twin_triangles_hit(method):
+    """A scene of one triangle, and one of two identical triangles (the lower index must win),
+    each hit straight down through the triangle."""
+    corners = [[0, 0, 0], [1, 0, 0], [0, 1, 0]]
+    hits = ra.build(ra.TriangleMesh(corners, [[0, 1, 2]]), method).intersect([[0.2, 0.2, 1.0]], [[0, 0, -1.0]])
+    assert hits.prim[0] == 0 and hits.t[0] == pytest.approx(1.0)
+    twins = ra.TriangleMesh(corners, [[0, 1, 2], [0, 1, 2]])
+    assert ra.build(twins, method).intersect([[0.2, 0.2, 1.0]], [[0, 0, -1.0]]).prim[0] == 0

@@ -11,6 +11,7 @@ import rayaccel as ra
 from rayaccel.geometry.kdop import KDOP_NORMALS
 
 from conftest import (
+    assert_one_and_twin_triangles_hit,
     assert_same_hits,
     axis_parallel_rays,
     camera_rays,
@@ -113,11 +114,7 @@ def test_tighter_volumes_have_lower_expected_leaf_visits(small_dragon):
 
 @pytest.mark.parametrize("method", BUILDERS)
 def test_degenerate_scenes(method):
-    one = ra.TriangleMesh([[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 1, 2]])
-    hits = ra.build(one, method).intersect([[0.2, 0.2, 1.0]], [[0, 0, -1.0]])
-    assert hits.prim[0] == 0 and hits.t[0] == pytest.approx(1.0)
-    twins = ra.TriangleMesh([[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 1, 2], [0, 1, 2]])
-    assert ra.build(twins, method).intersect([[0.2, 0.2, 1.0]], [[0, 0, -1.0]]).prim[0] == 0
+    assert_one_and_twin_triangles_hit(method)
     # many copies of one primitive: all centroids equal; ties go to the lowest index
     copies = ra.Spheres(np.zeros((20_000, 3)), 1.0)
     accel = ra.build(copies, method, max_leaf_size=4)

@@ -12,6 +12,7 @@ from rayaccel.geometry.overlap import prim_overlaps_box
 from rayaccel.structures.kdtree.layout import LEAF
 
 from conftest import (
+    assert_one_and_twin_triangles_hit,
     assert_same_hits,
     axis_parallel_rays,
     camera_rays,
@@ -214,11 +215,7 @@ def test_grid_bvh_cells_hold_their_references(small_dragon):
 
 @pytest.mark.parametrize("method", SPATIAL)
 def test_degenerate_scenes(method):
-    one = ra.TriangleMesh([[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 1, 2]])
-    hits = ra.build(one, method).intersect([[0.2, 0.2, 1.0]], [[0, 0, -1.0]])
-    assert hits.prim[0] == 0 and hits.t[0] == pytest.approx(1.0)
-    twins = ra.TriangleMesh([[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 1, 2], [0, 1, 2]])
-    assert ra.build(twins, method).intersect([[0.2, 0.2, 1.0]], [[0, 0, -1.0]]).prim[0] == 0
+    assert_one_and_twin_triangles_hit(method)
     copies = ra.Spheres(np.zeros((20_000, 3)), 1.0)
     hits = ra.build(copies, method).intersect([[0, 0, -5.0], [0, 5.0, 0]], [[0, 0, 1.0], [0, 0, 1.0]])
     assert hits.prim.tolist() == [0, -1]

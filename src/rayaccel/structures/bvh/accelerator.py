@@ -67,8 +67,9 @@ class BoundingVolumeHierarchy(Accelerator):
     def __init__(self, scene, *, max_leaf_size=None, traversal_cost=None, intersection_cost=1.0, bounds="aabb",
                  sphere_fit="primitives", width=4, **builder_options):
         max_leaf_size = self.default_leaf_size if max_leaf_size is None else max_leaf_size
+        wide = bounds == "aabb" and width == 4
         if traversal_cost is None:
-            traversal_cost = 2.0 if bounds == "aabb" and width == 4 else 3.0
+            traversal_cost = 2.0 if wide else 3.0
         max_leaf_size = check_number("max_leaf_size", max_leaf_size, integer=True)
         traversal_cost = check_number("traversal_cost", traversal_cost)
         intersection_cost = check_number("intersection_cost", intersection_cost)
@@ -105,7 +106,7 @@ class BoundingVolumeHierarchy(Accelerator):
             self.volume = np.zeros((0, 1))
         self._volume_rows = node_rows(self.volume) if len(self.volume) else self.volume
         self.max_depth = int(node_depths(first, count).max())
-        self.wide = wide_records(box, first, count) if bounds == "aabb" and width == 4 else None
+        self.wide = wide_records(box, first, count) if wide else None
         self.build_seconds = time.perf_counter() - start
 
     def _build(self, prim_bounds, max_leaf_size, traversal_cost, intersection_cost, **options):

@@ -17,8 +17,8 @@ distance); otherwise into every cell its bounding box overlaps. Both passes
 run in parallel over slabs of cell layers along z, each slab with its own
 bucket of the primitives that reach it, so writes never collide; the
 primitives are first sorted by cell row, so both passes walk the cell arrays
-nearly in memory order. Offsets and references are
-int32, which halves the memory a large grid touches.
+nearly in memory order. Offsets and references are int32, which halves the
+memory a large grid touches.
 """
 
 from __future__ import annotations
@@ -137,11 +137,13 @@ def _slab_scans(ranges, slab_depth, n_slabs):
 
 @kernel
 def _running_sum(a):
-    """``a`` replaced by its inclusive prefix sums."""
+    """``a`` replaced by its inclusive prefix sums; returns the total, summed in int64 so
+    that it is right even where ``a``'s own integers would overflow."""
     total = 0
     for i in range(a.shape[0]):
         total += a[i]
         a[i] = total
+    return total
 
 
 @inline_kernel
@@ -236,8 +238,7 @@ def build_grid(bounds, lo: np.ndarray, hi: np.ndarray, kind: int, geom: np.ndarr
     cell_first = np.zeros(n_cells + 1, dtype=np.int32)
     _insert(prims, ranges, kind, geom, exact, lo, cell_size, res, slab_depth, scan_first, scan_end,
             cell_first[:-1], np.zeros(0, dtype=np.int32), False)
-    _running_sum(cell_first[:-1])
-    n_references = int(cell_first[-2]) if n_cells else 0
+    n_references = int(_running_sum(cell_first[:-1]))
     if n_references >= np.iinfo(np.int32).max:
         raise ValueError(f"the grid would hold {n_references:,} references, more than 2**31; use fewer cells")
     cell_prims = np.empty(n_references, dtype=np.int32)

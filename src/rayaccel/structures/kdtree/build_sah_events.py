@@ -41,8 +41,8 @@ from numba.typed import List
 from ..._jit import inline_kernel, kernel
 from ...geometry.clip import CLIP_VERTICES, split_clipped_bounds
 from ..build_arrays import reserve_rows
-from .events import END, PLANAR, START, event_before, sort_events
-from .layout import LEAF, add_children, split_cell
+from .events import END, PLANAR, START, event_before, put_events, sort_events
+from .layout import LEAF, add_children, copy_cell, split_cell
 
 __all__ = ["build_subtree"]
 
@@ -165,19 +165,8 @@ def _clip_straddling(straddling, n_straddling, cell, axis, p, kind, geom, slack,
             if not sides & (1 << side):
                 continue
             for b in range(3):
-                f = fill[side, b]
-                lo = boxes[side, b]
-                hi = boxes[side, b + 3]
-                if lo == hi:
-                    new_pos[side, b, f] = lo
-                    new_code[side, b, f] = prim << 2 | PLANAR
-                    fill[side, b] = f + 1
-                else:
-                    new_pos[side, b, f] = lo
-                    new_code[side, b, f] = prim << 2 | START
-                    new_pos[side, b, f + 1] = hi
-                    new_code[side, b, f + 1] = prim << 2 | END
-                    fill[side, b] = f + 2
+                fill[side, b] = put_events(new_pos[side, b], new_code[side, b], fill[side, b], prim,
+                                           boxes[side, b], boxes[side, b + 3])
     for side in range(2):
         for b in range(3):
             sort_events(new_pos[side, b], new_code[side, b], fill[side, b])
@@ -234,7 +223,7 @@ def _distribute_axis(pos, code, span, flags, new_pos, new_code, fill, child_span
 @kernel
 def _distribute(pos, code, span, flags, new_pos, new_code, fill, child_span):
     """One pass over the parent's events: each goes to the left child, the right child or
-    (straddling) neither, merged on the way with the clipped events of its side.
+    (straddling) neither; then each child's clipped events are merged in.
 
     ``child_span[side, axis]`` arrives holding where that child's events of that axis
     start (room for every parent event of the axis plus the clipped ones) and leaves
@@ -242,12 +231,6 @@ def _distribute(pos, code, span, flags, new_pos, new_code, fill, child_span):
     """
     for b in range(3):
         _distribute_axis(pos, code, span, flags, new_pos, new_code, fill, child_span, b)
-
-
-@inline_kernel
-def _copy_cell(dst, src):
-    for c in range(6):
-        dst[c] = src[c]
 
 
 @inline_kernel
@@ -271,7 +254,7 @@ def build_subtree(pos, code, span, n_prims, cell, depth, kind, geom, n_scene_pri
     Nodes holding fewer than ``defer_below`` primitives are not built but left as
     placeholders and returned, with copies of their events, as deferred tasks (for
     building in parallel; pass 0 to build everything). Returns ``(node_split,
-    node_link, leaf_prims, deepest, deferred)`` where ``deferred`` lists ``(node,
+    node_link, leaf_prims, deferred)`` where ``deferred`` lists ``(node,
     pos, code, span, n_prims, cell, depth)``.
     """
     region = span[2, 1] - span[0, 0]
@@ -287,7 +270,6 @@ def build_subtree(pos, code, span, n_prims, cell, depth, kind, geom, n_scene_pri
     leaf_prims = np.empty(2 * n_prims + 16, dtype=np.int32)
     n_nodes = 1
     n_refs = 0
-    deepest = depth
     flags = np.empty(n_scene_prims, dtype=np.uint8)
     poly = np.empty((2, CLIP_VERTICES, 3))
     boxes = np.empty((2, 6))
@@ -309,7 +291,6 @@ def build_subtree(pos, code, span, n_prims, cell, depth, kind, geom, n_scene_pri
     sp = 0
     deferred = List()
     while True:
-        deepest = max(deepest, depth)
         best_axis = -1
         if n < defer_below:
             lo, hi = span[0, 0], span[2, 1]
@@ -359,13 +340,13 @@ def build_subtree(pos, code, span, n_prims, cell, depth, kind, geom, n_scene_pri
             task_node[sp] = child + 1
             _copy_span(task_span[sp], child_span[1])
             task_n[sp] = n_right + kept_right
-            _copy_cell(task_cell[sp], child_cell[1])
+            copy_cell(task_cell[sp], child_cell[1])
             task_depth[sp] = depth + 1
             sp += 1
             node = child
             _copy_span(span, child_span[0])
             n = n_left + kept_left
-            _copy_cell(cell, child_cell[0])
+            copy_cell(cell, child_cell[0])
             depth += 1
             top = slot
             continue
@@ -375,7 +356,7 @@ def build_subtree(pos, code, span, n_prims, cell, depth, kind, geom, n_scene_pri
         node = task_node[sp]
         _copy_span(span, task_span[sp])
         n = task_n[sp]
-        _copy_cell(cell, task_cell[sp])
+        copy_cell(cell, task_cell[sp])
         depth = task_depth[sp]
         top = span[2, 1]
-    return node_split[:n_nodes].copy(), node_link[:n_nodes].copy(), leaf_prims[:n_refs].copy(), deepest, deferred
+    return node_split[:n_nodes].copy(), node_link[:n_nodes].copy(), leaf_prims[:n_refs].copy(), deferred

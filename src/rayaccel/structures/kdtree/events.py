@@ -14,12 +14,27 @@ import numpy as np
 
 from ..._jit import inline_kernel, kernel
 
-__all__ = ["END", "PLANAR", "START", "order_ties", "axis_events", "node_events", "root_events", "event_before",
-           "sort_events"]
+__all__ = ["END", "PLANAR", "START", "put_events", "order_ties", "axis_events", "node_events", "root_events",
+           "event_before", "sort_events"]
 
 END = 0
 PLANAR = 1
 START = 2
+
+
+@inline_kernel
+def put_events(pos, code, k, prim, lo, hi):
+    """Write the events of ``prim``'s box ``lo..hi`` on one axis at ``pos[k:]``, ``code[k:]``:
+    one planar event where the box is flat, else a start and an end. Returns the next free index."""
+    if lo == hi:
+        pos[k] = lo
+        code[k] = prim << 2 | PLANAR
+        return k + 1
+    pos[k] = lo
+    code[k] = prim << 2 | START
+    pos[k + 1] = hi
+    code[k + 1] = prim << 2 | END
+    return k + 2
 
 
 @kernel
@@ -54,18 +69,7 @@ def axis_events(ids, boxes, axis):
     code = np.empty(n_events, dtype=np.int64)
     k = 0
     for i in range(ids.shape[0]):
-        lo = boxes[i, axis]
-        hi = boxes[i, axis + 3]
-        if lo == hi:
-            pos[k] = lo
-            code[k] = ids[i] << 2 | PLANAR
-            k += 1
-        else:
-            pos[k] = lo
-            code[k] = ids[i] << 2 | START
-            pos[k + 1] = hi
-            code[k + 1] = ids[i] << 2 | END
-            k += 2
+        k = put_events(pos, code, k, ids[i], boxes[i, axis], boxes[i, axis + 3])
     order = np.argsort(pos)
     pos = pos[order]
     code = code[order]
@@ -75,22 +79,14 @@ def axis_events(ids, boxes, axis):
 
 @kernel
 def _concatenate_axes(pos0, code0, pos1, code1, pos2, code2):
-    sizes = (pos0.shape[0], pos1.shape[0], pos2.shape[0])
-    total = sizes[0] + sizes[1] + sizes[2]
-    pos = np.empty(total)
-    code = np.empty(total, dtype=np.int64)
+    """The three axes' events in one list, with each axis's ``span``."""
     span = np.empty((3, 2), dtype=np.int64)
-    span[0, 0] = 0
-    span[0, 1] = span[1, 0] = sizes[0]
-    span[1, 1] = span[2, 0] = sizes[0] + sizes[1]
-    span[2, 1] = total
-    pos[:sizes[0]] = pos0
-    pos[span[1, 0]:span[1, 1]] = pos1
-    pos[span[2, 0]:] = pos2
-    code[:sizes[0]] = code0
-    code[span[1, 0]:span[1, 1]] = code1
-    code[span[2, 0]:] = code2
-    return pos, code, span
+    end = 0
+    for axis, size in enumerate((pos0.shape[0], pos1.shape[0], pos2.shape[0])):
+        span[axis, 0] = end
+        end += size
+        span[axis, 1] = end
+    return np.concatenate((pos0, pos1, pos2)), np.concatenate((code0, code1, code2)), span
 
 
 @kernel

@@ -32,7 +32,7 @@ import numpy as np
 from ..._jit import inline_kernel, kernel
 from ..build_arrays import reserve_rows
 
-__all__ = ["LEAF", "KdTreeArrays", "node_cells", "add_children", "split_cell"]
+__all__ = ["LEAF", "KdTreeArrays", "node_cells", "add_children", "copy_cell", "split_cell"]
 
 LEAF = 3
 
@@ -99,10 +99,16 @@ def add_children(node_split, node_link, n_nodes, node, position, axis):
 
 
 @inline_kernel
+def copy_cell(dst, src):
+    """``dst[:] = src`` for a cell's six bounds, without the cost of a slice assignment."""
+    for c in range(6):
+        dst[c] = src[c]
+
+
+@inline_kernel
 def split_cell(cell, axis, position, child_cell):
     """``child_cell[0]`` and ``child_cell[1]``: ``cell`` below and above ``position`` on ``axis``."""
-    for side in range(2):
-        for c in range(6):
-            child_cell[side, c] = cell[c]
+    copy_cell(child_cell[0], cell)
+    copy_cell(child_cell[1], cell)
     child_cell[0, axis + 3] = position
     child_cell[1, axis] = position
