@@ -12,12 +12,16 @@ __all__ = ["RayBatch", "RayCounters", "Hits", "Camera", "prepare_rays"]
 
 
 class RayBatch(NamedTuple):
-    """Validated rays: float64 C-contiguous ``origins``/``directions`` (n, 3), ``t_min``/``t_max`` (n,)."""
+    """Validated rays: float64 C-contiguous ``origins``/``directions`` (n, 3), ``t_min``/``t_max`` (n,),
+    and ``hit_slot`` (n,) int64, the row of the output arrays that takes each ray's hit:
+    ``arange(n)`` as given, a permutation once :func:`rayaccel.ray_order.coherent_batch`
+    has sorted the rays."""
 
     origins: np.ndarray
     directions: np.ndarray
     t_min: np.ndarray
     t_max: np.ndarray
+    hit_slot: np.ndarray
 
 
 class RayCounters(NamedTuple):
@@ -77,7 +81,8 @@ def prepare_rays(origins, directions, t_min=0.0, t_max=np.inf) -> RayBatch:
         zero = ~directions.any(axis=1)
         raise ValueError(f"{int(zero.sum())} ray direction(s) have zero length (first at index {first_zero})")
     n = len(origins)
-    return RayBatch(origins, directions, as_per_ray("t_min", t_min, n), as_per_ray("t_max", t_max, n))
+    return RayBatch(origins, directions, as_per_ray("t_min", t_min, n), as_per_ray("t_max", t_max, n),
+                    np.arange(n, dtype=np.int64))
 
 
 class Camera:

@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 from .._jit import inline_kernel
 from ..geometry.primitive import intersect_prim
+from ..ray_order import MIN_RAYS, coherent_batch
 from ..rays import Camera, Hits, RayCounters, prepare_rays
 from ..scene import SPHERE, Spheres, TriangleMesh
 
@@ -71,7 +74,8 @@ class Accelerator:
     """A built acceleration structure over a scene.
 
     Subclasses set :attr:`method`, fill :attr:`build_seconds`, and implement
-    :meth:`_trace` (one kernel call filling the output arrays) and
+    :meth:`_trace` (one kernel call filling the output arrays, ray ``i`` of the
+    batch into row ``batch.hit_slot[i]``) and
     :meth:`_structure_stats`.
     """
 
@@ -86,7 +90,8 @@ class Accelerator:
         opts = ", ".join(f"{k}={v!r}" for k, v in self.options.items())
         return f"<{self.method} over {self.scene!r}{', ' + opts if opts else ''}>"
 
-    def intersect(self, origins, directions, t_min=0.0, t_max=np.inf, *, any_hit=False, counters=False) -> Hits:
+    def intersect(self, origins, directions, t_min=0.0, t_max=np.inf, *, any_hit=False, counters=False,
+                  reorder=True) -> Hits:
         """Closest hit of each ray in ``[t_min, t_max]``.
 
         Parameters
@@ -100,6 +105,10 @@ class Accelerator:
             Stop at the first hit found rather than the closest (shadow rays).
         counters : bool
             Also return per-ray work counters in ``hits.counters``.
+        reorder : bool
+            Trace a batch of ``ray_order.MIN_RAYS`` rays or more in a coherent
+            order (:mod:`rayaccel.ray_order`); the results are in the given order
+            either way. ``False`` traces the rays in the given order.
         """
         batch = prepare_rays(origins, directions, t_min, t_max)
         n = len(batch.origins)
@@ -108,6 +117,8 @@ class Accelerator:
         u = np.zeros(n)
         v = np.zeros(n)
         work = np.zeros((n if counters else 0, 3), dtype=np.int64)
+        if reorder and n >= MIN_RAYS:
+            batch = coherent_batch(batch, *self._scene_box)
         if n:
             self._trace(batch, bool(any_hit), t, prim, u, v, work)
         hit = prim >= 0
@@ -118,9 +129,14 @@ class Accelerator:
         ray_counters = RayCounters(work[:, 0].copy(), work[:, 1].copy(), work[:, 2].copy()) if counters else None
         return Hits(t, prim, u, v, ray_counters)
 
-    def occluded(self, origins, directions, t_min=0.0, t_max=np.inf) -> np.ndarray:
+    def occluded(self, origins, directions, t_min=0.0, t_max=np.inf, *, reorder=True) -> np.ndarray:
         """(n,) bool: whether anything lies on each ray within ``[t_min, t_max]``."""
-        return self.intersect(origins, directions, t_min, t_max, any_hit=True).hit
+        return self.intersect(origins, directions, t_min, t_max, any_hit=True, reorder=reorder).hit
+
+    @functools.cached_property
+    def _scene_box(self) -> tuple[np.ndarray, np.ndarray]:
+        bounds = self.scene.bounds()
+        return bounds.scene_lo, bounds.scene_hi
 
     def _sphere_uv(self, batch, t, prim, hit):
         points = batch.origins[hit] + t[hit, None] * batch.directions[hit]

@@ -12,7 +12,8 @@ __all__ = ["BruteForce", "brute_force_kernel"]
 
 
 @parallel_kernel
-def brute_force_kernel(kind, geom, origins, directions, t_min, t_max, any_hit, out_t, out_prim, out_u, out_v, work):
+def brute_force_kernel(kind, geom, origins, directions, t_min, t_max, hit_slot, any_hit, out_t, out_prim, out_u, out_v,
+                       work):
     n_prims = geom.shape[0]
     for i in prange(origins.shape[0]):
         ray = ray_setup(origins[i, 0], origins[i, 1], origins[i, 2], directions[i, 0], directions[i, 1], directions[i, 2])
@@ -28,9 +29,9 @@ def brute_force_kernel(kind, geom, origins, directions, t_min, t_max, any_hit, o
                 best_t, best_prim, best_u, best_v = t, prim, u, v
                 if any_hit:
                     break
-        store_hit(i, best_t, best_prim, best_u, best_v, out_t, out_prim, out_u, out_v)
+        store_hit(hit_slot[i], best_t, best_prim, best_u, best_v, out_t, out_prim, out_u, out_v)
         if work.shape[0] > 0:
-            work[i, 1] = tests
+            work[hit_slot[i], 1] = tests
 
 
 class BruteForce(Accelerator):
@@ -46,8 +47,7 @@ class BruteForce(Accelerator):
         super().__init__(scene, {})
 
     def _trace(self, batch, any_hit, t, prim, u, v, work):
-        brute_force_kernel(self.scene.kind, self.scene.geometry, batch.origins, batch.directions,
-                           batch.t_min, batch.t_max, any_hit, t, prim, u, v, work)
+        brute_force_kernel(self.scene.kind, self.scene.geometry, *batch, any_hit, t, prim, u, v, work)
 
     def _structure_stats(self) -> dict:
         n = len(self.scene)

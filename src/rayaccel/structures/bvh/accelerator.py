@@ -118,15 +118,15 @@ class BoundingVolumeHierarchy(Accelerator):
         if self.wide is not None:
             depth = 3 * self.max_depth + 8
             wide_trace_kernel(b.node_records, self.wide, self.wide.view(np.int32), b.prim_order, self.scene.kind,
-                              self.geometry, batch.origins, batch.directions, batch.t_min, batch.t_max, any_hit,
+                              self.geometry, *batch, any_hit,
                               np.empty((rows, depth), dtype=np.int32), np.empty((rows, depth), dtype=np.int32),
                               np.empty((rows, depth)), t, prim, u, v, work)
             return
         stack_node = np.empty((rows, self.max_depth + 2), dtype=np.int32)
         stack_t = np.empty((rows, self.max_depth + 2))
         bvh_trace_kernel(self.bounds_kind, b.node_records, self._volume_rows, b.node_records.view(np.int32),
-                         b.prim_order, self.scene.kind, self.geometry, KDOP_NORMALS, batch.origins, batch.directions,
-                         batch.t_min, batch.t_max, any_hit, stack_node, stack_t, t, prim, u, v, work)
+                         b.prim_order, self.scene.kind, self.geometry, KDOP_NORMALS, *batch, any_hit, stack_node,
+                         stack_t, t, prim, u, v, work)
 
     def volume_areas(self) -> np.ndarray:
         """Surface area of each node's volume (the one the traversal tests)."""

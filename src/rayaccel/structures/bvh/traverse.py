@@ -119,7 +119,7 @@ def volume_ray_setup(ox, oy, oz, dx, dy, dz, normals, with_diagonals):
 
 @parallel_kernel
 def bvh_trace_kernel(bounds_kind, node_box, node_volume, node_links, prim_order, kind, geom,
-                     normals, origins, directions, t_min, t_max, any_hit, stack_node, stack_t,
+                     normals, origins, directions, t_min, t_max, hit_slot, any_hit, stack_node, stack_t,
                      out_t, out_prim, out_u, out_v, work):
     """Trace every ray through the BVH; ``geom`` is in leaf order (``geom[prim_order]``).
 
@@ -179,7 +179,7 @@ def bvh_trace_kernel(bounds_kind, node_box, node_volume, node_links, prim_order,
                 sp -= 1
                 if stack_t[tid, sp] <= best_t:
                     node = stack_node[tid, sp]
-        store_hit(i, best_t, best_prim, best_u, best_v, out_t, out_prim, out_u, out_v)
+        store_hit(hit_slot[i], best_t, best_prim, best_u, best_v, out_t, out_prim, out_u, out_v)
         if count_work:
-            work[i, 0] = n_nodes
-            work[i, 1] = n_tests
+            work[hit_slot[i], 0] = n_nodes
+            work[hit_slot[i], 1] = n_tests

@@ -76,8 +76,8 @@ def _push(records, geom, stack_link, stack_count, stack_t, tid, sp, t, link, cou
 
 
 @parallel_kernel
-def wide_trace_kernel(root_box, records, links, prim_order, kind, geom, origins, directions, t_min, t_max, any_hit,
-                      stack_link, stack_count, stack_t, out_t, out_prim, out_u, out_v, work):
+def wide_trace_kernel(root_box, records, links, prim_order, kind, geom, origins, directions, t_min, t_max, hit_slot,
+                      any_hit, stack_link, stack_count, stack_t, out_t, out_prim, out_u, out_v, work):
     """Trace every ray through the wide BVH; ``geom`` is in leaf order (``geom[prim_order]``),
     ``links`` is ``records`` seen as int32, and row 0 of ``root_box`` (a binary node record)
     the whole tree's box, which a ray must enter before the root's four children are
@@ -145,7 +145,7 @@ def wide_trace_kernel(root_box, records, links, prim_order, kind, geom, origins,
                             break
                 if any_hit and best_prim >= 0:
                     sp = 0
-        store_hit(i, best_t, best_prim, best_u, best_v, out_t, out_prim, out_u, out_v)
+        store_hit(hit_slot[i], best_t, best_prim, best_u, best_v, out_t, out_prim, out_u, out_v)
         if count_work:
-            work[i, 0] = n_nodes
-            work[i, 1] = n_tests
+            work[hit_slot[i], 0] = n_nodes
+            work[hit_slot[i], 1] = n_tests

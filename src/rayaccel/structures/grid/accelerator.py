@@ -82,8 +82,7 @@ class UniformGrid(Accelerator):
         g = self.grid
         with self.mailboxes.lend(len(batch.origins)) as (mailbox, base):
             grid_trace_kernel(g.lo, g.hi, g.res, g.cell_size, g.cell_first, g.cell_prims,
-                              self.scene.kind, self.scene.geometry, batch.origins, batch.directions,
-                              batch.t_min, batch.t_max, any_hit, mailbox, base, t, prim, u, v, work)
+                              self.scene.kind, self.scene.geometry, *batch, any_hit, mailbox, base, t, prim, u, v, work)
 
     def _structure_stats(self) -> dict:
         g = self.grid

@@ -63,7 +63,7 @@ def dda_step(cx, cy, cz, next_x, next_y, next_z, step_x, step_y, step_z, delta_x
 
 @parallel_kernel
 def grid_trace_kernel(grid_lo, grid_hi, res, cell_size, cell_first, cell_prims, kind, geom,
-                      origins, directions, t_min, t_max, any_hit, mailbox, ray_id_base,
+                      origins, directions, t_min, t_max, hit_slot, any_hit, mailbox, ray_id_base,
                       out_t, out_prim, out_u, out_v, work):
     """Trace every ray.
 
@@ -108,8 +108,8 @@ def grid_trace_kernel(grid_lo, grid_hi, res, cell_size, cell_first, cell_prims, 
                                                                   step_z, delta_x, delta_y, delta_z, res)
             if not inside:
                 break
-        store_hit(i, best_t, best_prim, best_u, best_v, out_t, out_prim, out_u, out_v)
+        store_hit(hit_slot[i], best_t, best_prim, best_u, best_v, out_t, out_prim, out_u, out_v)
         if count_work:
-            work[i, 0] = n_cells
-            work[i, 1] = n_tests
-            work[i, 2] = n_skips
+            work[hit_slot[i], 0] = n_cells
+            work[hit_slot[i], 1] = n_tests
+            work[hit_slot[i], 2] = n_skips

@@ -66,9 +66,8 @@ class HierarchicalGrid(Accelerator):
         saved_float = np.empty((rows, levels, 7))
         with self.mailboxes.lend(len(batch.origins)) as (mailbox, base):
             hgrid_trace_kernel(h.lo, h.hi, h.grid_lo, h.grid_res, h.grid_cell_size, h.grid_cell_base, h.cell_child,
-                               h.cell_first, h.cell_prims, self.scene.kind, self.scene.geometry, batch.origins,
-                               batch.directions, batch.t_min, batch.t_max, any_hit, mailbox, base, saved_int,
-                               saved_float, t, prim, u, v, work)
+                               h.cell_first, h.cell_prims, self.scene.kind, self.scene.geometry, *batch, any_hit,
+                               mailbox, base, saved_int, saved_float, t, prim, u, v, work)
 
     def _structure_stats(self) -> dict:
         h = self.hgrid

@@ -26,8 +26,8 @@ __all__ = ["hgrid_trace_kernel"]
 
 @parallel_kernel
 def hgrid_trace_kernel(lo, hi, grid_lo, grid_res, grid_cell_size, grid_cell_base, cell_child, cell_first, cell_prims,
-                       kind, geom, origins, directions, t_min, t_max, any_hit, mailbox, ray_id_base, saved_int,
-                       saved_float, out_t, out_prim, out_u, out_v, work):
+                       kind, geom, origins, directions, t_min, t_max, hit_slot, any_hit, mailbox, ray_id_base,
+                       saved_int, saved_float, out_t, out_prim, out_u, out_v, work):
     """Trace every ray; ``saved_int`` (threads, levels, 7) int64 and ``saved_float``
     (threads, levels, 7) hold the outer walks' DDA states; ``mailbox`` as in the uniform grid."""
     count_work = work.shape[0] > 0
@@ -119,8 +119,8 @@ def hgrid_trace_kernel(lo, hi, grid_lo, grid_res, grid_cell_size, grid_cell_base
                 stretch_end = saved_float[tid, level, 6]
             if done:
                 break
-        store_hit(i, best_t, best_prim, best_u, best_v, out_t, out_prim, out_u, out_v)
+        store_hit(hit_slot[i], best_t, best_prim, best_u, best_v, out_t, out_prim, out_u, out_v)
         if count_work:
-            work[i, 0] = n_cells
-            work[i, 1] = n_tests
-            work[i, 2] = n_skips
+            work[hit_slot[i], 0] = n_cells
+            work[hit_slot[i], 1] = n_tests
+            work[hit_slot[i], 2] = n_skips

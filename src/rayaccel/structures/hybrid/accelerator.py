@@ -73,9 +73,8 @@ class GridBvh(Accelerator):
         stack_t = np.empty((rows, self.bvh_depth + 2))
         with self.mailboxes.lend(len(batch.origins)) as (mailbox, base):
             grid_bvh_trace_kernel(h.lo, h.hi, h.res, h.cell_size, h.cell_first, h.cell_prims, h.cell_root, h.node_box,
-                                  h.node_first, h.node_count, self.scene.kind, self.scene.geometry, batch.origins,
-                                  batch.directions, batch.t_min, batch.t_max, any_hit, mailbox, base, stack_node,
-                                  stack_t, t, prim, u, v, work)
+                                  h.node_first, h.node_count, self.scene.kind, self.scene.geometry, *batch, any_hit,
+                                  mailbox, base, stack_node, stack_t, t, prim, u, v, work)
 
     def _structure_stats(self) -> dict:
         h = self.hybrid

@@ -26,8 +26,8 @@ __all__ = ["grid_bvh_trace_kernel"]
 
 @parallel_kernel
 def grid_bvh_trace_kernel(lo, hi, res, cell_size, cell_first, cell_prims, cell_root, node_box, node_first, node_count,
-                          kind, geom, origins, directions, t_min, t_max, any_hit, mailbox, ray_id_base, stack_node,
-                          stack_t, out_t, out_prim, out_u, out_v, work):
+                          kind, geom, origins, directions, t_min, t_max, hit_slot, any_hit, mailbox, ray_id_base,
+                          stack_node, stack_t, out_t, out_prim, out_u, out_v, work):
     """Trace every ray; ``mailbox`` as in the uniform grid, stacks (threads, depth + 2)."""
     nx, ny, nz = res[0], res[1], res[2]
     count_work = work.shape[0] > 0
@@ -108,8 +108,8 @@ def grid_bvh_trace_kernel(lo, hi, res, cell_size, cell_first, cell_prims, cell_r
             if not inside:
                 break
             t_cell = cell_exit
-        store_hit(i, best_t, best_prim, best_u, best_v, out_t, out_prim, out_u, out_v)
+        store_hit(hit_slot[i], best_t, best_prim, best_u, best_v, out_t, out_prim, out_u, out_v)
         if count_work:
-            work[i, 0] = n_steps
-            work[i, 1] = n_tests
-            work[i, 2] = n_skips
+            work[hit_slot[i], 0] = n_steps
+            work[hit_slot[i], 1] = n_tests
+            work[hit_slot[i], 2] = n_skips

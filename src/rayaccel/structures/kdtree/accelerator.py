@@ -197,8 +197,7 @@ class KdTree(Accelerator):
         stack_node = np.empty((rows, self.max_depth + 2), dtype=np.int32)
         stack_t = np.empty((rows, self.max_depth + 2, 2))
         kdtree_trace_kernel(k.lo, k.hi, k.node_split, k.node_link, k.leaf_prims, self.scene.kind, self.scene.geometry,
-                            batch.origins, batch.directions, batch.t_min, batch.t_max, any_hit, stack_node, stack_t,
-                            t, prim, u, v, work)
+                            *batch, any_hit, stack_node, stack_t, t, prim, u, v, work)
 
     def _structure_stats(self) -> dict:
         k = self.kd

@@ -41,7 +41,7 @@ def _margin(t):
 
 @parallel_kernel
 def kdtree_trace_kernel(lo, hi, node_split, node_link, leaf_prims, kind, geom, origins, directions, t_min, t_max,
-                        any_hit, stack_node, stack_t, out_t, out_prim, out_u, out_v, work):
+                        hit_slot, any_hit, stack_node, stack_t, out_t, out_prim, out_u, out_v, work):
     """Trace every ray; ``stack_node`` (threads, depth) int32 and ``stack_t`` (threads, depth, 2)."""
     count_work = work.shape[0] > 0
     no_mailbox = np.zeros((0, 0), dtype=np.int64)
@@ -113,7 +113,7 @@ def kdtree_trace_kernel(lo, hi, node_split, node_link, leaf_prims, kind, geom, o
                     t0 = stack_t[tid, sp, 0]
                     t1 = stack_t[tid, sp, 1]
                     break
-        store_hit(i, best_t, best_prim, best_u, best_v, out_t, out_prim, out_u, out_v)
+        store_hit(hit_slot[i], best_t, best_prim, best_u, best_v, out_t, out_prim, out_u, out_v)
         if count_work:
-            work[i, 0] = n_nodes
-            work[i, 1] = n_tests
+            work[hit_slot[i], 0] = n_nodes
+            work[hit_slot[i], 1] = n_tests

@@ -68,8 +68,7 @@ class Octree(Accelerator):
         stack_node = np.empty((rows, 3 * self.max_depth + 4), dtype=np.int32)
         stack_t = np.empty((rows, 3 * self.max_depth + 4, 2))
         octree_trace_kernel(o.lo, o.hi, o.node_center, o.node_link, o.leaf_prims, self.scene.kind, self.scene.geometry,
-                            batch.origins, batch.directions, batch.t_min, batch.t_max, any_hit, stack_node, stack_t,
-                            t, prim, u, v, work)
+                            *batch, any_hit, stack_node, stack_t, t, prim, u, v, work)
 
     def node_cells(self) -> np.ndarray:
         """(n_nodes, 6) cell of every node, lo and hi."""

@@ -41,7 +41,7 @@ def _crossing(o, d, inv, center):
 
 @parallel_kernel
 def octree_trace_kernel(lo, hi, node_center, node_link, leaf_prims, kind, geom, origins, directions, t_min, t_max,
-                        any_hit, stack_node, stack_t, out_t, out_prim, out_u, out_v, work):
+                        hit_slot, any_hit, stack_node, stack_t, out_t, out_prim, out_u, out_v, work):
     """Trace every ray; ``stack_node`` (threads, 3 * depth + 4) int32, ``stack_t`` (threads, same, 2)."""
     count_work = work.shape[0] > 0
     no_mailbox = np.zeros((0, 0), dtype=np.int64)
@@ -122,7 +122,7 @@ def octree_trace_kernel(lo, hi, node_center, node_link, leaf_prims, kind, geom, 
                     node = stack_node[tid, sp]
                     t0 = stack_t[tid, sp, 0]
                     t1 = stack_t[tid, sp, 1]
-        store_hit(i, best_t, best_prim, best_u, best_v, out_t, out_prim, out_u, out_v)
+        store_hit(hit_slot[i], best_t, best_prim, best_u, best_v, out_t, out_prim, out_u, out_v)
         if count_work:
-            work[i, 0] = n_nodes
-            work[i, 1] = n_tests
+            work[hit_slot[i], 0] = n_nodes
+            work[hit_slot[i], 1] = n_tests

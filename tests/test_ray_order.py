@@ -1,0 +1,58 @@
+"""Coherent ray order: sorting a batch changes nothing but the speed."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import rayaccel as ra
+from rayaccel.ray_order import MIN_RAYS, coherent_batch
+from rayaccel.rays import Hits, prepare_rays
+
+from conftest import assert_same_hits, camera_rays, random_rays
+
+
+@pytest.fixture(scope="module")
+def incoherent_batch(small_dragon):
+    origins, directions = random_rays(small_dragon, MIN_RAYS + 4321, seed=3)
+    rng = np.random.default_rng(4)
+    t_min = rng.uniform(0.0, 0.05, len(origins))
+    t_max = rng.choice([np.inf, 0.3], len(origins))
+    return origins, directions, t_min, t_max
+
+
+@pytest.mark.parametrize("method", [m for m in ra.methods() if m != "none"])
+def test_sorted_batch_gives_the_same_hits_and_counters(small_dragon, incoherent_batch, method):
+    accel = ra.build(small_dragon, method)
+    given = accel.intersect(*incoherent_batch, counters=True, reorder=False)
+    reordered = accel.intersect(*incoherent_batch, counters=True)
+    assert_same_hits(given, reordered)
+    for name in ("nodes", "tests", "mailbox_skips"):
+        np.testing.assert_array_equal(getattr(reordered.counters, name), getattr(given.counters, name))
+    np.testing.assert_array_equal(accel.occluded(*incoherent_batch), accel.occluded(*incoherent_batch, reorder=False))
+
+
+def test_sorted_batch_agrees_with_brute_force(small_dragon, incoherent_batch):
+    subset = slice(None, None, 17)
+    reference = ra.build(small_dragon, "none").intersect(*(a[subset] for a in incoherent_batch))
+    hits = ra.build(small_dragon, "bvh-binned").intersect(*incoherent_batch)
+    assert_same_hits(reference, Hits(hits.t[subset], hits.prim[subset], hits.u[subset], hits.v[subset], None))
+
+
+def test_sort_is_a_permutation_by_octant_then_origin(small_dragon, incoherent_batch):
+    batch = prepare_rays(*incoherent_batch)
+    bounds = small_dragon.bounds()
+    ordered = coherent_batch(batch, bounds.scene_lo, bounds.scene_hi)
+    slot = ordered.hit_slot
+    np.testing.assert_array_equal(np.sort(slot), np.arange(len(slot)))
+    for given, moved in zip(batch[:4], ordered[:4]):
+        np.testing.assert_array_equal(moved, given[slot])
+    octant = (ordered.directions < 0) @ np.array([4, 2, 1])
+    assert (np.diff(octant) >= 0).all()
+
+
+def test_coherent_batches_are_left_alone(small_dragon):
+    origins, directions = camera_rays(small_dragon, 200)
+    batch = prepare_rays(origins, directions)
+    bounds = small_dragon.bounds()
+    assert coherent_batch(batch, bounds.scene_lo, bounds.scene_hi) is batch
