@@ -5,7 +5,9 @@ For each scene and method: build seconds and closest-hit Mrays/s on primary
 rays, any-hit Mrays/s on primary rays, and the ratio of each to Embree's on 2
 threads (embreex queries run on one thread; the 2-thread figure splits the rays
 over two Python threads, as embreex releases the GIL) and, for closest hit, to
-the best rayaccel BVH in the run. Every figure is the median of five rounds in
+the best rayaccel BVH in the run. rayaccel sorts incoherent batches before
+tracing them (``rayaccel.ray_order``); the row "rays as given" repeats the first
+method with ``reorder=False``, to show what the sort adds. Every figure is the median of five rounds in
 which all structures and competitors take turns, so that all of them meet the
 same phases of a noisy machine. Brute force is timed on a subset of the rays.
 Figures vary by +-30% on a shared machine: read the ratios, not the absolutes.
@@ -115,6 +117,10 @@ def bench_scene(name: str, methods: list[str], side: int, competitors: set[str],
         subjects.append({"scene": name, "method": f"rayaccel {method}",
                          "build": median_seconds(lambda: ra.build(scene, method), repeats=3),
                          "calls": _queries(accel.intersect, accel.occluded, rays)})
+    first = ra.build(scene, methods[0])
+    subjects.append({"scene": name, "method": f"rayaccel {methods[0]}, rays as given", "build": subjects[0]["build"],
+                     "calls": _queries(partial(first.intersect, reorder=False), partial(first.occluded, reorder=False),
+                                       rays)})
     reference_hits = accel.intersect(*rays["primary"]).prim
     if "embreex" in competitors:
         embree = EmbreeScene(scene)
@@ -165,7 +171,7 @@ def main() -> None:
     for row in rows:
         same_scene = [r for r in rows if r["scene"] == row["scene"]]
         embree = next((r for r in same_scene if r["method"] == "Embree (embreex), 2 threads"), None)
-        bvhs = [r for r in same_scene if r["method"].startswith("rayaccel bvh-")]
+        bvhs = [r for r in same_scene if r["method"].startswith("rayaccel bvh-") and "as given" not in r["method"]]
         to_embree = [f"{row[k] / embree[k]:.3f}" if embree else "-" for k in ("primary", "incoherent", "any-hit")]
         to_bvh = [f"{row[k] / max(r[k] for r in bvhs):.3f}" if bvhs else "-" for k in ("primary", "incoherent")]
         table.add_row(row["scene"], row["method"], f"{row['build']:.3f}", f"{row['primary']:.3g}",
