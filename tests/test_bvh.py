@@ -61,6 +61,41 @@ def test_bvh_on_bunny_and_adversarial_rays(bunny, small_dragon, method):
                          accel.intersect(on_surface, directions, 0.0, t_max))
 
 
+def _leaf_ranges(accel):
+    b = accel.bvh
+    leaf = b.node_count > 0
+    return b.node_first[leaf].astype(np.int64), b.node_count[leaf].astype(np.int64)
+
+
+@pytest.mark.parametrize("method", BUILDERS)
+def test_structural_invariants(small_dragon, method):
+    accel = ra.build(small_dragon, method, max_leaf_size=6)
+    b = accel.bvh
+    n = len(small_dragon)
+    # every primitive in exactly one leaf, leaves tile the primitive order
+    assert sorted(b.prim_order.tolist()) == list(range(n))
+    first, count = _leaf_ranges(accel)
+    covered = np.zeros(n, dtype=int)
+    for f, c in zip(first, count):
+        covered[f:f + c] += 1
+    assert (covered == 1).all()
+    assert (count >= 1).all() and (count <= 6).all()
+    # a binary tree: 2 * leaves - 1 nodes, children after parents
+    assert b.n_nodes == 2 * len(first) - 1
+    inner = np.flatnonzero(b.node_count == 0)
+    assert (b.node_first[inner] > inner).all()
+    # child boxes inside parent boxes, leaf boxes around their primitives
+    for node in inner:
+        for child in (b.node_first[node], b.node_first[node] + 1):
+            assert (b.node_box[child, :3] >= b.node_box[node, :3]).all()
+            assert (b.node_box[child, 3:] <= b.node_box[node, 3:]).all()
+    bounds = small_dragon.bounds()
+    for node in np.flatnonzero(b.node_count > 0):
+        prims = b.prim_order[b.node_first[node]:b.node_first[node] + b.node_count[node]]
+        assert (bounds.lo[prims] >= b.node_box[node, :3]).all()
+        assert (bounds.hi[prims] <= b.node_box[node, 3:]).all()
+
+
 def test_wide_nodes_hold_every_leaf_once_inside_their_boxes(small_dragon):
     from rayaccel.structures.bvh.wide import UNUSED
 
