@@ -6,10 +6,10 @@ rays, any-hit Mrays/s on primary rays, and the ratio of each to Embree's on 2
 threads (embreex queries run on one thread; the 2-thread figure splits the rays
 over two Python threads, as embreex releases the GIL) and, for closest hit, to
 the best rayaccel BVH in the run. rayaccel sorts incoherent batches before
-tracing them (``rayaccel.ray_order``); the row "rays as given" repeats the first
-method with ``reorder=False``, to show what the sort adds. Every figure is the median of five rounds in
-which all structures and competitors take turns, so that all of them meet the
-same phases of a noisy machine. Brute force is timed on a subset of the rays.
+tracing them (``rayaccel.ray_order``); the row "rays as given" repeats the
+first method with ``reorder=False``, to show what the sort adds. Every figure
+is the median of five rounds in which all structures and competitors take
+turns, so that all of them meet the same phases of a noisy machine. Brute force is timed on a subset of the rays.
 Figures vary by +-30% on a shared machine: read the ratios, not the absolutes.
 
     python benchmarks/bench_structures.py [--scenes bunny dragon] [--methods grid bvh-binned] [--side 1024]
@@ -112,12 +112,13 @@ def bench_scene(name: str, methods: list[str], side: int, competitors: set[str],
     scene = ra.load_scene(name)
     rays = {"primary": primary_rays(scene, side), "incoherent": incoherent_rays(scene, side * side)}
     subjects = []
+    accels = {}
     for method in methods:
-        accel = ra.build(scene, method)
+        accel = accels[method] = ra.build(scene, method)
         subjects.append({"scene": name, "method": f"rayaccel {method}",
                          "build": median_seconds(lambda: ra.build(scene, method), repeats=3),
                          "calls": _queries(accel.intersect, accel.occluded, rays)})
-    first = ra.build(scene, methods[0])
+    first = accels[methods[0]]
     subjects.append({"scene": name, "method": f"rayaccel {methods[0]}, rays as given", "build": subjects[0]["build"],
                      "calls": _queries(partial(first.intersect, reorder=False), partial(first.occluded, reorder=False),
                                        rays)})

@@ -28,6 +28,7 @@ import numpy as np
 from numba import prange
 
 from ._jit import kernel, parallel_kernel, thread_count
+from .counting_sort import chunk_range, counts_to_starts
 from .rays import RayBatch
 
 __all__ = ["MIN_RAYS", "coherent_batch"]
@@ -54,17 +55,12 @@ def _cell(value, lo, scale, cells):
     return min(max(int((value - lo) * scale), 0), cells - 1)
 
 
-@kernel
-def _chunk(n, n_chunks, c):
-    return c * n // n_chunks, (c + 1) * n // n_chunks
-
-
 @parallel_kernel
 def _sort_rays(origins, directions, t_min, t_max, hit_slot, lo, scale, bits_per_axis, n_chunks,
                out_origins, out_directions, out_t_min, out_t_max, out_hit_slot):
     """Copy the rays into the ``out_*`` arrays, stably sorted by key (octant, Morton code of
-    the origin's cell in ``lo + [0, 2**bits_per_axis) / scale``): a counting sort whose
-    counting and placing passes run chunk by chunk in parallel. The placing pass
+    the origin's cell in ``lo + [0, 2**bits_per_axis) / scale``): a counting sort over
+    ``n_chunks`` chunks of rays (:mod:`rayaccel.counting_sort`). The placing pass
     reads the rays in order and writes each where it belongs; reading each from its
     place in the sorted order instead waits on a cache and TLB miss per ray."""
     n = origins.shape[0]
@@ -72,7 +68,7 @@ def _sort_rays(origins, directions, t_min, t_max, hit_slot, lo, scale, bits_per_
     keys = np.empty(n, dtype=np.int32)
     starts = np.zeros((n_chunks, 8 << (3 * bits_per_axis)), dtype=np.int64)
     for c in prange(n_chunks):
-        first, end = _chunk(n, n_chunks, c)
+        first, end = chunk_range(n, n_chunks, c)
         for i in range(first, end):
             morton = (_spread_bits(_cell(origins[i, 0], lo[0], scale[0], cells), bits_per_axis)
                       | (_spread_bits(_cell(origins[i, 1], lo[1], scale[1], cells), bits_per_axis) << 1)
@@ -81,14 +77,9 @@ def _sort_rays(origins, directions, t_min, t_max, hit_slot, lo, scale, bits_per_
             key = (octant << (3 * bits_per_axis)) | morton
             keys[i] = key
             starts[c, key] += 1
-    total = 0
-    for key in range(starts.shape[1]):
-        for c in range(n_chunks):
-            count = starts[c, key]
-            starts[c, key] = total
-            total += count
+    counts_to_starts(starts)
     for c in prange(n_chunks):
-        first, end = _chunk(n, n_chunks, c)
+        first, end = chunk_range(n, n_chunks, c)
         for i in range(first, end):
             place = starts[c, keys[i]]
             starts[c, keys[i]] += 1

@@ -30,6 +30,7 @@ import numpy as np
 from numba import prange
 
 from ..._jit import inline_kernel, kernel, parallel_kernel, thread_count
+from ...counting_sort import chunk_range, counts_to_starts
 from ...geometry.overlap import prim_overlaps_box
 from .layout import GridArrays
 
@@ -73,8 +74,8 @@ def cell_span(lo, hi, grid_lo, cell_size, res, axis):
 @parallel_kernel
 def _in_row_order(prim_lo, prim_hi, grid_lo, cell_size, res, n_chunks):
     """The primitives sorted by the first row of cells (y, z) their boxes reach, with the
-    cell ranges ``x0, x1, y0, y1, z0, z1`` of each: a counting sort (in parallel over
-    ``n_chunks`` chunks of primitives, each with its own counts), so that insertion reads
+    cell ranges ``x0, x1, y0, y1, z0, z1`` of each: a counting sort over ``n_chunks``
+    chunks of primitives (:mod:`rayaccel.counting_sort`), so that insertion reads
     primitives and writes cells nearly in memory order instead of jumping across the grid.
     Grids of more than ``ROW_KEYS`` rows sort by groups of consecutive rows."""
     n_prims = prim_lo.shape[0]
@@ -83,25 +84,21 @@ def _in_row_order(prim_lo, prim_hi, grid_lo, cell_size, res, n_chunks):
     while (rows - 1) >> shift >= ROW_KEYS:
         shift += 1
     n_keys = ((rows - 1) >> shift) + 1
-    chunk = -(-n_prims // n_chunks)
     key = np.empty(n_prims, dtype=np.int32)
     counts = np.zeros((n_chunks, n_keys), dtype=np.int64)
     for c in prange(n_chunks):
-        for prim in range(c * chunk, min(n_prims, (c + 1) * chunk)):
+        first, end = chunk_range(n_prims, n_chunks, c)
+        for prim in range(first, end):
             y0, _ = cell_span(prim_lo[prim, 1], prim_hi[prim, 1], grid_lo, cell_size, res, 1)
             z0, _ = cell_span(prim_lo[prim, 2], prim_hi[prim, 2], grid_lo, cell_size, res, 2)
             key[prim] = (y0 + res[1] * z0) >> shift
             counts[c, key[prim]] += 1
-    total = 0
-    for k in range(n_keys):
-        for c in range(n_chunks):
-            count = counts[c, k]
-            counts[c, k] = total
-            total += count
+    counts_to_starts(counts)
     prims = np.empty(n_prims, dtype=np.int32)
     ranges = np.empty((n_prims, 6), dtype=np.int32)
     for c in prange(n_chunks):
-        for prim in range(c * chunk, min(n_prims, (c + 1) * chunk)):
+        first, end = chunk_range(n_prims, n_chunks, c)
+        for prim in range(first, end):
             k = counts[c, key[prim]]
             counts[c, key[prim]] = k + 1
             prims[k] = prim

@@ -105,8 +105,8 @@ class KdTree(Accelerator):
     exact_below : int, default 4096
         Nodes with fewer primitives get the exact sweep. On the full dragon
         (871k triangles) the binned levels raise the expected cost by 0.5 %
-        (90.2 against 89.7) and take the build from 4.2-5.1 s to 2.2-3.2 s (the
-        same runs: medians of five builds 4.87 against 3.22 s in a slow spell).
+        (90.2 against 89.7) and cut the build's median of five from 4.24 s to
+        2.86 s (one run, in a slow spell of the machine).
     threads : int, optional
         Build threads (default: the parallel kernels' thread count). The top
         of the tree is built on one thread down to nodes of fewer than
