@@ -5,7 +5,6 @@ from __future__ import annotations
 import math
 import time
 from concurrent.futures import ThreadPoolExecutor
-from functools import partial
 
 import numba
 import numpy as np
@@ -15,63 +14,88 @@ from ..._validate import check_number
 from ...stats import box_area, surface_area_stats
 from ..base import Accelerator
 from ..grid.build_uniform import grid_box
-from .build_sah_events import build_subtree
 from .build_sah_binned import build_binned_top
-from .events import node_events, root_events
+from .build_sah_events import build_subtrees
 from .layout import LEAF, KdTreeArrays, node_cells
 from .traverse import kdtree_trace_kernel
 
 __all__ = ["KdTree"]
 
 _MAX_PRIMS = 1 << 28  # leaf counts are stored as count << 2 in an int32
+_BATCHES_PER_THREAD = 4
 
 
 @kernel
-def _graft_nodes(node_split, node_link, placeholders, splits, links, counts, refs, n_refs, out_split, out_link):
-    """The node arrays of :func:`_graft`: the tree's nodes, then each subtree's nodes but its
-    root (which goes to its placeholder), with links moved to the new numbering."""
+def _graft_nodes(node_split, node_link, placeholders, roots, splits, links, counts, refs, n_refs, out_split,
+                 out_link):
+    """The node arrays of :func:`_graft`: the tree's nodes, then each forest's nodes but its
+    roots (which go to their placeholders), with links moved to the new numbering."""
     n_tree = node_split.shape[0]
     out_split[:n_tree] = node_split
     out_link[:n_tree] = node_link
     source = 0
     target = n_tree
     ref_first = n_refs
-    for s in range(counts.shape[0]):
-        for j in range(counts[s]):
-            row = placeholders[s] if j == 0 else target + j - 1
+    placeholder = 0
+    for f in range(counts.shape[0]):
+        for j in range(counts[f]):
+            row = placeholders[placeholder + j] if j < roots[f] else target + j - roots[f]
             out_split[row] = splits[source + j]
             leaf = (links[source + j, 1] & 3) == LEAF
-            out_link[row, 0] = links[source + j, 0] + (ref_first if leaf else target - 1)
+            out_link[row, 0] = links[source + j, 0] + (ref_first if leaf else target - roots[f])
             out_link[row, 1] = links[source + j, 1]
-        source += counts[s]
-        target += counts[s] - 1
-        ref_first += refs[s]
+        source += counts[f]
+        target += counts[f] - roots[f]
+        ref_first += refs[f]
+        placeholder += roots[f]
 
 
-def _graft(tree, placeholders, subtrees):
-    """Put each subtree ``(node_split, node_link, leaf_prims)`` in place of its placeholder
-    leaf in ``tree`` (the same three arrays): the subtree's root takes the placeholder's
-    slot, its other nodes and its leaf references are appended. Returns the new tree and,
-    per subtree, the index its node 1 got (its node ``k > 0`` is at that index + k - 1)."""
+def _graft(tree, placeholders, forests):
+    """Put the roots of each forest ``(node_split, node_link, leaf_prims, roots)`` -- its first
+    ``roots`` nodes, grown by :func:`build_subtrees` or :func:`build_binned_top` -- in place
+    of their placeholder leaves in ``tree`` (node_split, node_link, leaf_prims), in the
+    order of ``placeholders``, and append their other nodes and their leaf references.
+    Returns the new tree and, per forest, the index its node ``roots`` got (its node
+    ``k >= roots`` is at that index + k - roots)."""
     node_split, node_link, leaf_prims = tree
-    if not subtrees:
+    if not forests:
         return tree, np.zeros(0, dtype=np.int64)
-    counts = np.array([len(split) for split, _, _ in subtrees], dtype=np.int64)
-    refs = np.array([len(leaves) for _, _, leaves in subtrees], dtype=np.int64)
-    n_nodes = len(node_split) + int(counts.sum()) - len(counts)
+    counts = np.array([len(split) for split, _, _, _ in forests], dtype=np.int64)
+    roots = np.array([root_count for _, _, _, root_count in forests], dtype=np.int64)
+    refs = np.array([len(leaves) for _, _, leaves, _ in forests], dtype=np.int64)
+    n_nodes = len(node_split) + int(counts.sum() - roots.sum())
     out_split = np.empty(n_nodes)
     out_link = np.empty((n_nodes, 2), dtype=np.int32)
-    _graft_nodes(node_split, node_link, np.asarray(placeholders, dtype=np.int64),
-                 np.concatenate([split for split, _, _ in subtrees]), np.concatenate([link for _, link, _ in subtrees]),
+    _graft_nodes(node_split, node_link, np.asarray(placeholders, dtype=np.int64), roots,
+                 np.concatenate([forest[0] for forest in forests]), np.concatenate([forest[1] for forest in forests]),
                  counts, refs, len(leaf_prims), out_split, out_link)
-    firsts = len(node_split) + np.cumsum(counts - 1) - (counts - 1)
-    leaves = np.concatenate([leaf_prims] + [leaves for _, _, leaves in subtrees])
+    firsts = len(node_split) + np.cumsum(counts - roots) - (counts - roots)
+    leaves = np.concatenate([leaf_prims] + [forest[2] for forest in forests])
     return (out_split, out_link, leaves), firsts
 
 
-def _exact_subtree(ids, boxes, cell, depth, *params):
-    """:func:`build_subtree` over primitives ``ids`` with bounds ``boxes`` in ``cell``."""
-    return build_subtree(*node_events(ids, boxes), len(ids), cell, depth, *params)
+def _balanced_batches(tasks, batches):
+    """``tasks`` (node, ids, boxes, cell, depth) dealt into ``batches`` groups of about equal
+    primitive counts, largest task first."""
+    groups = [[] for _ in range(batches)]
+    loads = [0] * batches
+    for task in sorted(tasks, key=lambda task: -len(task[1])):
+        lightest = loads.index(min(loads))
+        groups[lightest].append(task)
+        loads[lightest] += len(task[1])
+    return [group for group in groups if group]
+
+
+def _exact_batch(tasks, params, defer_below=0):
+    """:func:`build_subtrees` over ``tasks`` (node, ids, boxes, cell, depth): the forest
+    ``(node_split, node_link, leaf_prims, roots)``, the placeholders of its roots, and the
+    deferred tasks."""
+    sizes = [len(task[1]) for task in tasks]
+    *forest, deferred = build_subtrees(np.concatenate([task[1] for task in tasks]),
+                                       np.concatenate([task[2] for task in tasks]),
+                                       np.concatenate(([0], np.cumsum(sizes))), np.array([task[3] for task in tasks]),
+                                       np.array([task[4] for task in tasks], dtype=np.int64), *params, defer_below)
+    return (*forest, len(tasks)), [task[0] for task in tasks], list(deferred)
 
 
 class KdTree(Accelerator):
@@ -148,23 +172,22 @@ class KdTree(Accelerator):
         root_cell = np.concatenate((lo, hi))
         slack = 1e-11 * float(np.abs(root_cell).max() + (hi - lo).max())
         n = len(scene)
-        params = (scene.kind, scene.geometry, n, traversal_cost, intersection_cost, empty_bonus, leaf_size,
+        params = (scene.kind, scene.geometry, traversal_cost, intersection_cost, empty_bonus, leaf_size,
                   max_depth, slack)
         with ThreadPoolExecutor(max(threads, 1)) as pool:
             if exact_below > 0:
                 tree, tasks = self._binned_top(pool, scene, bounds, root_cell, threads, slack, traversal_cost,
                                                intersection_cost, empty_bonus, leaf_size, max_depth, bins, exact_below)
-                exact = [(node, len(ids), partial(_exact_subtree, ids, boxes, cell, depth))
-                         for node, ids, boxes, cell, depth in tasks]
             else:
-                pos, code, span = root_events(bounds.lo, bounds.hi, pool if threads > 1 else None)
+                root = [(0, np.arange(n), np.hstack((bounds.lo, bounds.hi)), root_cell, 0)]
                 defer_below = max(n // (4 * threads), 4096) if threads > 1 and n >= 8192 else 0
-                *tree, deferred = build_subtree(pos, code, span, n, root_cell, 0, *params, defer_below)
-                del pos, code
-                exact = [(task[0], task[4], partial(build_subtree, *task[1:])) for task in deferred]
-            exact.sort(key=lambda task: -task[1])
-            subtrees = list(pool.map(lambda task: task[2](*params, 0)[:3], exact))
-        (node_split, node_link, leaf_prims), _ = _graft(tree, [task[0] for task in exact], subtrees)
+                forest, _, tasks = _exact_batch(root, params, defer_below)
+                tree = forest[:3]
+            batches = list(pool.map(lambda batch: _exact_batch(batch, params),
+                                    _balanced_batches(tasks, _BATCHES_PER_THREAD * threads)))
+        tree, _ = _graft(tree, [node for _, placeholders, _ in batches for node in placeholders],
+                         [forest for forest, _, _ in batches])
+        node_split, node_link, leaf_prims = tree
         if len(node_split) >= np.iinfo(np.int32).max or len(leaf_prims) >= np.iinfo(np.int32).max:
             raise ValueError("the kd-tree outgrew int32 indices; raise leaf_size or lower max_depth")
         return KdTreeArrays(lo, hi, node_split, node_link, leaf_prims)
@@ -182,7 +205,7 @@ class KdTree(Accelerator):
         upper = [task for task in tasks if len(task[1]) >= exact_below]
         tasks = [task for task in tasks if len(task[1]) < exact_below]
         results = list(pool.map(lambda task: build_binned_top(*task[1:], *top, exact_below), upper))
-        tree, firsts = _graft(tree, [task[0] for task in upper], [result[:3] for result in results])
+        tree, firsts = _graft(tree, [task[0] for task in upper], [(*result[:3], 1) for result in results])
         for placeholder, first, result in zip([task[0] for task in upper], firsts, results):
             tasks += [(first + node - 1 if node else placeholder, *task) for node, *task in result[3]]
         return tree, tasks

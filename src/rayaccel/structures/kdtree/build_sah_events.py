@@ -41,10 +41,10 @@ from numba.typed import List
 from ..._jit import inline_kernel, kernel
 from ...geometry.clip import CLIP_VERTICES, split_clipped_bounds
 from ..build_arrays import reserve_rows
-from .events import END, PLANAR, START, event_before, put_events, sort_events
+from .events import END, PLANAR, START, event_before, put_events, sort_events, write_node_events
 from .layout import LEAF, add_children, copy_cell, split_cell
 
-__all__ = ["build_subtree"]
+__all__ = ["build_subtrees"]
 
 _BOTH = 0
 _LEFT = 1
@@ -145,9 +145,10 @@ def _classify(pos, code, first, last, p, planar_left, flags, straddling):
 
 
 @kernel
-def _clip_straddling(straddling, n_straddling, cell, axis, p, kind, geom, slack, poly, boxes, new_pos, new_code,
+def _clip_straddling(straddling, n_straddling, ids, cell, axis, p, kind, geom, slack, poly, boxes, new_pos, new_code,
                      fill):
-    """Events of the straddling primitives ``straddling[:n_straddling]`` clipped to the two
+    """Events of the straddling primitives ``straddling[:n_straddling]`` (scene primitives
+    ``ids[straddling]``) clipped to the two
     halves of ``cell`` split at ``p`` on ``axis``: rows ``new_pos[side, b, :fill[side, b]]``
     (and ``new_code``) per side and axis ``b``, each sorted. Returns how many primitives
     each side keeps."""
@@ -158,7 +159,7 @@ def _clip_straddling(straddling, n_straddling, cell, axis, p, kind, geom, slack,
     kept_right = 0
     for k in range(n_straddling):
         prim = straddling[k]
-        sides = split_clipped_bounds(kind, geom, prim, cell, axis, p, slack, poly, boxes)
+        sides = split_clipped_bounds(kind, geom, ids[prim], cell, axis, p, slack, poly, boxes)
         kept_left += sides & 1
         kept_right += sides >> 1
         for side in range(2):
@@ -169,7 +170,8 @@ def _clip_straddling(straddling, n_straddling, cell, axis, p, kind, geom, slack,
                                            boxes[side, b], boxes[side, b + 3])
     for side in range(2):
         for b in range(3):
-            sort_events(new_pos[side, b], new_code[side, b], fill[side, b])
+            if fill[side, b] > 1:
+                sort_events(new_pos[side, b], new_code[side, b], fill[side, b])
     return kept_left, kept_right
 
 
@@ -178,7 +180,7 @@ def _merge_clipped(pos, code, first, kept, new_pos, new_code, n_new):
     """Merge the sorted clipped events ``new_pos[:n_new]`` into a child's slot, whose
     sorted parent events are ``pos[first + n_new:first + n_new + kept]``, writing
     from ``first`` on. The write cursor never passes the read cursor, so no copy
-    of the parent events is needed. Returns the slot's end."""
+    of the parent events is needed."""
     i = first + n_new
     end = i + kept
     o = first
@@ -193,7 +195,6 @@ def _merge_clipped(pos, code, first, kept, new_pos, new_code, n_new):
             code[o] = new_code[j]
             j += 1
         o += 1
-    return end
 
 
 @kernel
@@ -219,8 +220,9 @@ def _distribute_axis(pos, code, span, flags, new_pos, new_code, fill, child_span
     for side, o in ((0, o0), (1, o1)):
         first = child_span[side, b, 0]
         n_new = fill[side, b]
-        kept = o - first - n_new
-        child_span[side, b, 1] = _merge_clipped(pos, code, first, kept, new_pos[side, b], new_code[side, b], n_new)
+        child_span[side, b, 1] = o
+        if n_new > 0:
+            _merge_clipped(pos, code, first, o - first - n_new, new_pos[side, b], new_code[side, b], n_new)
 
 
 @kernel
@@ -236,6 +238,33 @@ def _distribute(pos, code, span, flags, new_pos, new_code, fill, child_span):
         _distribute_axis(pos, code, span, flags, new_pos, new_code, fill, child_span, b)
 
 
+@kernel
+def _deferred_task(pos, code, span, ids, local):
+    """The primitives of one node, as scene primitives and their (clipped) bounds rebuilt from
+    the node's events: ``(ids, boxes)``. ``local`` is -1 for every primitive of the
+    builder and is left so."""
+    task_ids = np.empty(span[0, 1] - span[0, 0], dtype=np.int64)
+    n = 0
+    for i in range(span[0, 0], span[0, 1]):
+        prim = code[i] >> 2
+        if local[prim] < 0:
+            local[prim] = n
+            task_ids[n] = ids[prim]
+            n += 1
+    boxes = np.empty((n, 6))
+    for axis in range(3):
+        for i in range(span[axis, 0], span[axis, 1]):
+            row = local[code[i] >> 2]
+            kind = code[i] & 3
+            if kind != END:
+                boxes[row, axis] = pos[i]
+            if kind != START:
+                boxes[row, axis + 3] = pos[i]
+    for i in range(span[0, 0], span[0, 1]):
+        local[code[i] >> 2] = -1
+    return task_ids[:n].copy(), boxes
+
+
 @inline_kernel
 def _copy_span(dst, src):
     for axis in range(3):
@@ -244,122 +273,135 @@ def _copy_span(dst, src):
 
 
 @kernel
-def build_subtree(pos, code, span, n_prims, cell, depth, kind, geom, n_scene_prims, traversal_cost,
-                  intersection_cost, empty_bonus, leaf_size, max_depth, slack, defer_below):
-    """Build the kd-tree over one cell's events, depth first.
+def build_subtrees(ids, boxes, task_first, task_cell, task_depth, kind, geom, traversal_cost, intersection_cost,
+                   empty_bonus, leaf_size, max_depth, slack, defer_below):
+    """Build the kd-trees of many cells, depth first, one after the other.
 
-    The events live in one arena used like a stack: a split writes both
-    children's events above everything in use (each axis of each child in a
-    slot sized for the worst case), the walk continues into the left child, and
-    when a right child is taken from the task stack, everything above its
-    events -- the finished left subtree's -- is free again.
+    Task ``t`` is the cell ``task_cell[t]`` at ``task_depth[t]`` holding the scene
+    primitives ``ids[task_first[t]:task_first[t + 1]]``, whose (clipped) bounds are the
+    rows of ``boxes`` (lo, hi). The events number the primitives by their row, so the
+    per-primitive scratch is as large as ``ids``, and all tasks share it and the event
+    arena: one call builds the subtrees of many small cells without allocating.
+
+    The events live in one arena used like a stack. First each task's sorted
+    events are written at the bottom, one task after the other; the tasks are taken
+    from the last. A split writes both children's events above everything in use,
+    the right child's below the left's (each axis of each child in a slot sized for
+    the worst case), and the walk continues into the left child; whenever a node
+    is taken from the task stack, everything above its events -- the finished
+    subtrees' -- is free again.
 
     Nodes holding fewer than ``defer_below`` primitives are not built but left as
-    placeholders and returned, with copies of their events, as deferred tasks (for
-    building in parallel; pass 0 to build everything). Returns ``(node_split,
-    node_link, leaf_prims, deferred)`` where ``deferred`` lists ``(node,
-    pos, code, span, n_prims, cell, depth)``.
+    placeholders and returned as new tasks with their primitives' bounds in their
+    cells (for building in parallel; pass 0 to build everything).
+
+    Returns ``(node_split, node_link, leaf_prims, deferred)``: one node array for all
+    the subtrees, task ``t``'s root at node ``t``, and ``deferred`` listing ``(node,
+    ids, boxes, cell, depth)``.
     """
-    region = span[2, 1] - span[0, 0]
+    n_tasks = task_cell.shape[0]
+    n_prims = ids.shape[0]
+    region = 6 * n_prims
     arena_pos = np.empty(4 * region + 64)
     arena_code = np.empty(4 * region + 64, dtype=np.int64)
-    arena_pos[:region] = pos[span[0, 0]:span[2, 1]]
-    arena_code[:region] = code[span[0, 0]:span[2, 1]]
-    span = span - span[0, 0]
-    top = region
-    capacity = max(64, 4 * n_prims // max(leaf_size, 1))
+    max_task = 0
+    for t in range(n_tasks):
+        max_task = max(max_task, task_first[t + 1] - task_first[t])
+    keys = np.empty(2 * max_task, dtype=np.uint64)
+    spare_keys = np.empty(2 * max_task, dtype=np.uint64)
+    spare_code = np.empty(2 * max_task, dtype=np.int64)
+    max_tasks = n_tasks + max_depth + 2
+    task_node = np.empty(max_tasks, dtype=np.int64)
+    task_span = np.empty((max_tasks, 3, 2), dtype=np.int64)
+    task_n = np.empty(max_tasks, dtype=np.int64)
+    task_cells = np.empty((max_tasks, 6))
+    task_depths = np.empty(max_tasks, dtype=np.int64)
+    top = 0
+    for t in range(n_tasks):
+        first, last = task_first[t], task_first[t + 1]
+        write_node_events(first, boxes[first:last], arena_pos[top:], arena_code[top:], task_span[t], keys, spare_keys,
+                          spare_code)
+        task_span[t] += top
+        top = task_span[t, 2, 1]
+        task_node[t] = t
+        task_n[t] = last - first
+        copy_cell(task_cells[t], task_cell[t])
+        task_depths[t] = task_depth[t]
+    capacity = max(64, n_tasks + 4 * n_prims // max(leaf_size, 1))
     node_split = np.zeros(capacity)
     node_link = np.zeros((capacity, 2), dtype=np.int32)
     leaf_prims = np.empty(2 * n_prims + 16, dtype=np.int32)
-    n_nodes = 1
+    n_nodes = n_tasks
     n_refs = 0
-    flags = np.empty(n_scene_prims, dtype=np.uint8)
+    flags = np.empty(n_prims, dtype=np.uint8)
+    local = np.full(n_prims if defer_below > 0 else 0, -1, dtype=np.int64)
     poly = np.empty((2, CLIP_VERTICES, 3))
-    boxes = np.empty((2, 6))
+    clipped = np.empty((2, 6))
     fill = np.empty((2, 3), dtype=np.int64)
     straddling = np.empty(64, dtype=np.int64)
     new_pos = np.empty((2, 3, 64))
     new_code = np.empty((2, 3, 64), dtype=np.int64)
+    span = np.empty((3, 2), dtype=np.int64)
+    cell = np.empty(6)
     child_span = np.empty((2, 3, 2), dtype=np.int64)
     child_cell = np.empty((2, 6))
-    max_tasks = max_depth + 2
-    task_node = np.empty(max_tasks, dtype=np.int64)
-    task_span = np.empty((max_tasks, 3, 2), dtype=np.int64)
-    task_n = np.empty(max_tasks, dtype=np.int64)
-    task_cell = np.empty((max_tasks, 6))
-    task_depth = np.empty(max_tasks, dtype=np.int64)
-    cell = cell.copy()
-    node = 0
-    n = n_prims
-    sp = 0
     deferred = List()
-    while True:
-        best_axis = -1
-        if n < defer_below:
-            lo, hi = span[0, 0], span[2, 1]
-            deferred.append((node, arena_pos[lo:hi].copy(), arena_code[lo:hi].copy(), span - lo, n, cell.copy(),
-                             depth))
-        else:
-            best_cost = np.inf
-            best_pos = 0.0
-            best_planar_left = True
-            if n > leaf_size and depth < max_depth:
-                for axis in range(3):
-                    cost, p, planar_left = _best_plane(arena_pos, arena_code, span[axis, 0], span[axis, 1], axis,
-                                                       cell, n, traversal_cost, intersection_cost, empty_bonus)
-                    if cost < best_cost:
-                        best_cost, best_axis, best_pos, best_planar_left = cost, axis, p, planar_left
-            if best_axis >= 0 and best_cost >= intersection_cost * n:
-                best_axis = -1
-            if best_axis < 0:
-                leaf_prims = reserve_rows(leaf_prims, n_refs + n)
-                node_link[node, 0] = n_refs
-                node_link[node, 1] = n << 2 | LEAF
-                for i in range(span[0, 0], span[0, 1]):
-                    if arena_code[i] & 3 != END:
-                        leaf_prims[n_refs] = arena_code[i] >> 2
-                        n_refs += 1
-        if best_axis >= 0:
-            axis = best_axis
-            first, last = span[axis, 0], span[axis, 1]
-            straddling = reserve_rows(straddling, last - first)
-            n_left, n_right, n_straddling = _classify(arena_pos, arena_code, first, last, best_pos, best_planar_left,
-                                                      flags, straddling)
-            if new_pos.shape[2] < 2 * n_straddling:
-                new_pos = np.empty((2, 3, 4 * n_straddling))
-                new_code = np.empty((2, 3, 4 * n_straddling), dtype=np.int64)
-            split_cell(cell, axis, best_pos, child_cell)
-            kept_left, kept_right = _clip_straddling(straddling, n_straddling, cell, axis, best_pos, kind, geom, slack,
-                                                     poly, boxes, new_pos, new_code, fill)
-            slot = top
-            for side in range(2):
-                for b in range(3):
-                    child_span[side, b, 0] = slot
-                    slot += span[b, 1] - span[b, 0] + fill[side, b]
-            arena_pos = reserve_rows(arena_pos, slot)
-            arena_code = reserve_rows(arena_code, slot)
-            _distribute(arena_pos, arena_code, span, flags, new_pos, new_code, fill, child_span)
-            node_split, node_link, child, n_nodes = add_children(node_split, node_link, n_nodes, node, best_pos, axis)
-            task_node[sp] = child + 1
-            _copy_span(task_span[sp], child_span[1])
-            task_n[sp] = n_right + kept_right
-            copy_cell(task_cell[sp], child_cell[1])
-            task_depth[sp] = depth + 1
-            sp += 1
-            node = child
-            _copy_span(span, child_span[0])
-            n = n_left + kept_left
-            copy_cell(cell, child_cell[0])
-            depth += 1
-            top = slot
-            continue
-        if sp == 0:
-            break
+    sp = n_tasks
+    while sp > 0:
         sp -= 1
         node = task_node[sp]
         _copy_span(span, task_span[sp])
         n = task_n[sp]
-        copy_cell(cell, task_cell[sp])
-        depth = task_depth[sp]
+        copy_cell(cell, task_cells[sp])
+        depth = task_depths[sp]
         top = span[2, 1]
+        if n < defer_below:
+            deferred.append((node, *_deferred_task(arena_pos, arena_code, span, ids, local), cell.copy(), depth))
+            continue
+        best_axis = -1
+        best_cost = np.inf
+        best_pos = 0.0
+        best_planar_left = True
+        if n > leaf_size and depth < max_depth:
+            for axis in range(3):
+                cost, p, planar_left = _best_plane(arena_pos, arena_code, span[axis, 0], span[axis, 1], axis, cell, n,
+                                                   traversal_cost, intersection_cost, empty_bonus)
+                if cost < best_cost:
+                    best_cost, best_axis, best_pos, best_planar_left = cost, axis, p, planar_left
+        if best_axis < 0 or best_cost >= intersection_cost * n:
+            leaf_prims = reserve_rows(leaf_prims, n_refs + n)
+            node_link[node, 0] = n_refs
+            node_link[node, 1] = n << 2 | LEAF
+            for i in range(span[0, 0], span[0, 1]):
+                if arena_code[i] & 3 != END:
+                    leaf_prims[n_refs] = ids[arena_code[i] >> 2]
+                    n_refs += 1
+            continue
+        axis = best_axis
+        first, last = span[axis, 0], span[axis, 1]
+        straddling = reserve_rows(straddling, last - first)
+        n_left, n_right, n_straddling = _classify(arena_pos, arena_code, first, last, best_pos, best_planar_left,
+                                                  flags, straddling)
+        if new_pos.shape[2] < 2 * n_straddling:
+            new_pos = np.empty((2, 3, 4 * n_straddling))
+            new_code = np.empty((2, 3, 4 * n_straddling), dtype=np.int64)
+        split_cell(cell, axis, best_pos, child_cell)
+        kept_left, kept_right = _clip_straddling(straddling, n_straddling, ids, cell, axis, best_pos, kind, geom,
+                                                 slack, poly, clipped, new_pos, new_code, fill)
+        slot = top
+        for side in (1, 0):
+            for b in range(3):
+                child_span[side, b, 0] = slot
+                slot += span[b, 1] - span[b, 0] + fill[side, b]
+        arena_pos = reserve_rows(arena_pos, slot)
+        arena_code = reserve_rows(arena_code, slot)
+        _distribute(arena_pos, arena_code, span, flags, new_pos, new_code, fill, child_span)
+        node_split, node_link, child, n_nodes = add_children(node_split, node_link, n_nodes, node, best_pos, axis)
+        for side, count in ((1, n_right + kept_right), (0, n_left + kept_left)):
+            task_node[sp] = child + side
+            _copy_span(task_span[sp], child_span[side])
+            task_n[sp] = count
+            copy_cell(task_cells[sp], child_cell[side])
+            task_depths[sp] = depth + 1
+            sp += 1
     return node_split[:n_nodes].copy(), node_link[:n_nodes].copy(), leaf_prims[:n_refs].copy(), deferred

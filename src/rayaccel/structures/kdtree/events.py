@@ -14,7 +14,7 @@ import numpy as np
 
 from ..._jit import inline_kernel, kernel
 
-__all__ = ["END", "PLANAR", "START", "put_events", "order_ties", "axis_events", "node_events", "root_events",
+__all__ = ["END", "PLANAR", "START", "put_events", "sort_by_position", "write_node_events",
            "event_before", "sort_events"]
 
 END = 0
@@ -37,94 +37,90 @@ def put_events(pos, code, k, prim, lo, hi):
     return k + 2
 
 
-@kernel
-def order_ties(pos, code, scratch):
-    """Reorder runs of equal positions by event type (end, planar, start) in linear time;
-    ``pos`` must already be sorted. ``scratch`` is an int64 array at least as long."""
-    n = pos.shape[0]
-    i = 0
-    while i < n:
-        j = i + 1
-        while j < n and pos[j] == pos[i]:
-            j += 1
-        if j - i > 1:
-            m = 0
-            for kind in (END, PLANAR, START):
-                for k in range(i, j):
-                    if code[k] & 3 == kind:
-                        scratch[m] = code[k]
-                        m += 1
-            code[i:j] = scratch[:j - i]
-        i = j
+_SIGN = np.uint64(1 << 63)
+_ALL_BITS = np.uint64(0xFFFFFFFFFFFFFFFF)
+_DIGIT = np.uint64(0xFF)
+
+
+@inline_kernel
+def _position_key(bits):
+    """An unsigned integer that orders like the float with IEEE bits ``bits``, -0.0 as +0.0."""
+    if bits == _SIGN:
+        bits = np.uint64(0)
+    return bits ^ _ALL_BITS if bits & _SIGN else bits | _SIGN
+
+
+@inline_kernel
+def _key_bits(key):
+    """The float bits that :func:`_position_key` turned into ``key``."""
+    return key ^ _SIGN if key & _SIGN else key ^ _ALL_BITS
 
 
 @kernel
-def _box_faces(ids, boxes, axis):
-    """The unsorted events on ``axis`` of primitives ``ids`` with bounds ``boxes``, two
-    slots per primitive: a flat box's planar event and an unused slot at ``+inf``."""
-    n = ids.shape[0]
-    pos = np.empty(2 * n)
-    code = np.empty(2 * n, dtype=np.int64)
+def sort_by_position(pos, code, first, last, keys, spare_keys, spare_code):
+    """Sort the events ``pos[first:last]``, ``code[first:last]`` by position, stably: a least
+    significant digit radix sort on the positions' bits, a byte per pass, skipping the bytes
+    that all keys share (the high ones, within one node's cell). Emitting each axis's ends,
+    then planars, then starts therefore leaves ties in the order the sweep needs. The
+    three scratch arrays hold at least ``last - first`` elements."""
+    n = last - first
+    bits = pos[first:last].view(np.uint64)
+    counts = np.zeros((8, 256), dtype=np.int64)
     for i in range(n):
-        if put_events(pos, code, 2 * i, ids[i], boxes[i, axis], boxes[i, axis + 3]) == 2 * i + 1:
-            pos[2 * i + 1] = np.inf
-            code[2 * i + 1] = -1
-    return pos, code
+        key = _position_key(bits[i])
+        keys[i] = key
+        spare_code[i] = code[first + i]
+        for d in range(8):
+            counts[d, (key >> np.uint64(8 * d)) & _DIGIT] += 1
+    source_keys, source_code, target_keys, target_code = keys, spare_code, spare_keys, code[first:last]
+    for d in range(8):
+        shift = np.uint64(8 * d)
+        if n == 0 or counts[d, (keys[0] >> shift) & _DIGIT] == n:
+            continue
+        start = 0
+        for b in range(256):
+            count = counts[d, b]
+            counts[d, b] = start
+            start += count
+        for i in range(n):
+            key = source_keys[i]
+            digit = (key >> shift) & _DIGIT
+            o = counts[d, digit]
+            counts[d, digit] = o + 1
+            target_keys[o] = key
+            target_code[o] = source_code[i]
+        source_keys, source_code, target_keys, target_code = target_keys, target_code, source_keys, source_code
+    for i in range(n):
+        bits[i] = _key_bits(source_keys[i])
+        code[first + i] = source_code[i]
+
+
+@inline_kernel
+def _put_axis_events(first_id, boxes, axis, pos, code, k):
+    """Write the events on ``axis`` of primitives ``first_id + i`` with bounds ``boxes[i]`` from
+    index ``k`` on, ends first, then planars, then starts. Returns the next free index."""
+    for kind in (END, PLANAR, START):
+        for i in range(boxes.shape[0]):
+            lo = boxes[i, axis]
+            hi = boxes[i, axis + 3]
+            if (kind == PLANAR) == (lo == hi):
+                pos[k] = hi if kind == END else lo
+                code[k] = (first_id + i) << 2 | kind
+                k += 1
+    return k
 
 
 @kernel
-def _take_events(pos, code, order):
-    """``pos``/``code`` taken in ``order`` (which sorts ``pos``), without the unused slots
-    at the end, and with ties ordered by type."""
-    n_events = 0
-    for i in range(code.shape[0]):
-        n_events += code[i] >= 0
-    sorted_pos = np.empty(n_events)
-    sorted_code = np.empty(n_events, dtype=np.int64)
-    for k in range(n_events):
-        sorted_pos[k] = pos[order[k]]
-        sorted_code[k] = code[order[k]]
-    order_ties(sorted_pos, sorted_code, np.empty(n_events, dtype=np.int64))
-    return sorted_pos, sorted_code
-
-
-def axis_events(ids: np.ndarray, boxes: np.ndarray, axis: int):
-    """The sorted events ``(pos, code)`` on ``axis`` of primitives ``ids`` with bounds
-    ``boxes`` (n, 6: lo, hi). numpy sorts them: its introsort measured 4x faster
-    than Numba's ``np.argsort`` on a task's 4400 events."""
-    pos, code = _box_faces(ids, boxes, axis)
-    return _take_events(pos, code, np.argsort(pos))
-
-
-@kernel
-def _concatenate_axes(pos0, code0, pos1, code1, pos2, code2):
-    """The three axes' events in one list, with each axis's ``span``."""
-    span = np.empty((3, 2), dtype=np.int64)
+def write_node_events(first_id, boxes, pos, code, span, keys, spare_keys, spare_code):
+    """Write the sorted events of primitives ``first_id + i`` with bounds ``boxes[i]`` (lo, hi) to
+    ``pos``, ``code`` (room for 6 n events), axis by axis, axis ``a``'s at
+    ``span[a, 0]:span[a, 1]``; the scratch arrays of :func:`sort_by_position` hold 2 n."""
     end = 0
-    for axis, size in enumerate((pos0.shape[0], pos1.shape[0], pos2.shape[0])):
+    for axis in range(3):
         span[axis, 0] = end
-        end += size
+        end = _put_axis_events(first_id, boxes, axis, pos, code, end)
         span[axis, 1] = end
-    return np.concatenate((pos0, pos1, pos2)), np.concatenate((code0, code1, code2)), span
-
-
-def node_events(ids: np.ndarray, boxes: np.ndarray):
-    """The sorted events of primitives ``ids`` with bounds ``boxes``, axis by axis:
-    ``(pos, code, span)`` with axis ``a``'s events at ``span[a, 0]:span[a, 1]``."""
-    pos0, code0 = axis_events(ids, boxes, 0)
-    pos1, code1 = axis_events(ids, boxes, 1)
-    pos2, code2 = axis_events(ids, boxes, 2)
-    return _concatenate_axes(pos0, code0, pos1, code1, pos2, code2)
-
-
-def root_events(lo: np.ndarray, hi: np.ndarray, executor=None):
-    """:func:`node_events` of all primitives; the three axes sort concurrently when
-    ``executor`` is given."""
-    ids = np.arange(len(lo), dtype=np.int64)
-    boxes = np.hstack((lo, hi))
-    per_axis = list(executor.map(lambda axis: axis_events(ids, boxes, axis), range(3)) if executor
-                    else (axis_events(ids, boxes, axis) for axis in range(3)))
-    return _concatenate_axes(*per_axis[0], *per_axis[1], *per_axis[2])
+        sort_by_position(pos, code, span[axis, 0], end, keys, spare_keys, spare_code)
 
 
 @kernel
