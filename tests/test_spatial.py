@@ -9,6 +9,7 @@ from hypothesis import strategies as st
 
 import rayaccel as ra
 from rayaccel.geometry.overlap import prim_overlaps_box
+from rayaccel.structures.kdtree.events import END, PLANAR, START, write_node_events
 from rayaccel.structures.kdtree.layout import LEAF
 
 from conftest import (
@@ -153,6 +154,42 @@ def test_kdtree_invariants(closed_sphere_mesh, exact_below):
     stats = accel.stats()
     assert 1.0 <= stats["avg_prims_per_nonempty_leaf"] <= 8.0
     assert stats["max_depth"] <= round(8 + 1.3 * np.log2(len(scene)))
+
+
+@settings(max_examples=40, deadline=None)
+@given(n=st.integers(1, 400), seed=st.integers(0, 2**16), grid=st.sampled_from([0.0, 4.0, 1e6]))
+def test_kdtree_events_sorted_by_position_then_type(n, seed, grid):
+    rng = np.random.default_rng(seed)
+    lo = rng.uniform(-1, 1, size=(n, 3)) * rng.choice([1e-30, 1.0, 1e30], size=(n, 1))
+    hi = lo + rng.exponential(size=(n, 3)) * rng.integers(0, 2, size=(n, 3))
+    if grid:
+        lo, hi = np.round(lo * grid) / grid, np.round(hi * grid) / grid
+    lo[rng.random(n) < 0.1, 0] = -0.0
+    boxes = np.hstack((lo, np.maximum(lo, hi)))
+    pos, code, span = np.empty(6 * n), np.empty(6 * n, dtype=np.int64), np.empty((3, 2), dtype=np.int64)
+    write_node_events(7, boxes, pos, code, span, np.empty(2 * n, dtype=np.uint64), np.empty(2 * n, dtype=np.uint64),
+                      np.empty(2 * n, dtype=np.int64))
+    for axis in range(3):
+        first, last = span[axis]
+        flat = boxes[:, axis] == boxes[:, axis + 3]
+        expected = sorted([(boxes[i, axis], PLANAR, i) for i in np.flatnonzero(flat)]
+                          + [(boxes[i, axis], START, i) for i in np.flatnonzero(~flat)]
+                          + [(boxes[i, axis + 3], END, i) for i in np.flatnonzero(~flat)])
+        got = [(x, c & 3, (c >> 2) - 7) for x, c in zip(pos[first:last].tolist(), code[first:last].tolist())]
+        assert [(x, kind) for x, kind, _ in got] == [(x, kind) for x, kind, _ in expected]
+        assert sorted(got) == expected
+
+
+def test_kdtree_does_not_depend_on_threads_or_batches(small_dragon):
+    """The subtrees built in one batch or another, on one thread or several, are the same."""
+    for exact_below in (4096, 0):
+        trees = [ra.build(small_dragon, "kdtree", exact_below=exact_below, threads=threads) for threads in (1, 2, 5)]
+        stats = [tree.stats() for tree in trees]
+        for key in ("nodes", "leaves", "references", "max_depth"):
+            assert stats[0][key] == stats[1][key] == stats[2][key], key
+        assert stats[0]["expected_cost"] == pytest.approx(stats[1]["expected_cost"]) == stats[2]["expected_cost"]
+        cells = [np.sort(tree.node_cells(), axis=0) for tree in trees]
+        assert np.array_equal(cells[0], cells[1]) and np.array_equal(cells[0], cells[2])
 
 
 def test_octree_invariants(closed_sphere_mesh):

@@ -135,7 +135,12 @@ class KdTree(Accelerator):
         Build threads (default: the parallel kernels' thread count). The top
         of the tree is built on one thread down to nodes of fewer than
         ``n / (4 threads)`` primitives; those subtrees are then built
-        concurrently (the builders release the GIL) and grafted on.
+        concurrently (the builders release the GIL) and grafted on. The
+        exact sweep's cells go in four batches of about equal primitive
+        counts per thread, one builder call each: on the full dragon this
+        measured 8 % less CPU time than a call per cell (median of 12
+        builds, 5.25 against 5.69 s), which paid for sorting each cell's
+        events in Python.
     """
 
     method = "kdtree"

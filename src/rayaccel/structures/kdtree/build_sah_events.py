@@ -9,7 +9,8 @@ are sorted once, by position and then type (end < planar < start), and stay
 sorted: a node sweeps them to find its best plane, then hands them to its
 children by filtering, so no node ever sorts more than the few events of the
 primitives that the plane cuts. Events live in one arena used like a stack (see
-:func:`build_subtree`), so no node allocates event arrays of its own.
+:func:`build_subtrees`), so no node allocates event arrays of its own, and
+one call builds the subtrees of many cells.
 
 * **Sweep** (per axis): crossing the events in order keeps the counts left of,
   on, and right of the candidate plane, which gives the cost of every plane in
@@ -148,10 +149,9 @@ def _classify(pos, code, first, last, p, planar_left, flags, straddling):
 def _clip_straddling(straddling, n_straddling, ids, cell, axis, p, kind, geom, slack, poly, boxes, new_pos, new_code,
                      fill):
     """Events of the straddling primitives ``straddling[:n_straddling]`` (scene primitives
-    ``ids[straddling]``) clipped to the two
-    halves of ``cell`` split at ``p`` on ``axis``: rows ``new_pos[side, b, :fill[side, b]]``
-    (and ``new_code``) per side and axis ``b``, each sorted. Returns how many primitives
-    each side keeps."""
+    ``ids[straddling]``) clipped to the two halves of ``cell`` split at ``p`` on
+    ``axis``: rows ``new_pos[side, b, :fill[side, b]]`` (and ``new_code``) per side and
+    axis ``b``, each sorted. Returns how many primitives each side keeps."""
     for side in range(2):
         for b in range(3):
             fill[side, b] = 0

