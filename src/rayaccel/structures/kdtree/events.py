@@ -82,7 +82,7 @@ def sort_by_position(pos, code, first, last, keys, spare_keys, spare_code):
     source_keys, source_code, target_keys, target_code = keys, spare_code, spare_keys, code[first:last]
     for d in range(8):
         shift = np.uint64(8 * d)
-        if n == 0 or counts[d, (keys[0] >> shift) & _DIGIT] == n:
+        if n == 0 or counts[d, (source_keys[0] >> shift) & _DIGIT] == n:
             continue
         start = 0
         for b in range(256):
