@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..._jit import inline_kernel, kernel
+from ..._jit import inline_kernel, kernel, unsigned
 
 __all__ = ["END", "PLANAR", "START", "put_events", "sort_by_position", "write_node_events",
            "event_before", "sort_events"]
@@ -74,9 +74,9 @@ def sort_by_position(pos, code, first, last, keys, spare_keys, spare_code):
     bits = pos[first:last].view(np.uint64)
     counts = np.zeros((8, 256), dtype=np.int64)
     for i in range(n):
-        key = _position_key(bits[i])
-        keys[i] = key
-        spare_code[i] = code[first + i]
+        key = _position_key(bits[unsigned(i)])
+        keys[unsigned(i)] = key
+        spare_code[unsigned(i)] = code[unsigned(first + i)]
         for d in range(8):
             counts[d, (key >> np.uint64(8 * d)) & _DIGIT] += 1
     source_keys, source_code, target_keys, target_code = keys, spare_code, spare_keys, code[first:last]
@@ -90,12 +90,12 @@ def sort_by_position(pos, code, first, last, keys, spare_keys, spare_code):
             counts[d, b] = start
             start += count
         for i in range(n):
-            key = source_keys[i]
+            key = source_keys[unsigned(i)]
             digit = (key >> shift) & _DIGIT
             o = counts[d, digit]
             counts[d, digit] = o + 1
-            target_keys[o] = key
-            target_code[o] = source_code[i]
+            target_keys[unsigned(o)] = key
+            target_code[unsigned(o)] = source_code[unsigned(i)]
         source_keys, source_code, target_keys, target_code = target_keys, target_code, source_keys, source_code
     for i in range(n):
         bits[i] = _key_bits(source_keys[i])
@@ -130,7 +130,7 @@ def write_node_events(first_id, boxes, pos, code, span, keys, spare_keys, spare_
         sort_by_position(pos, code, span[axis, 0], end, keys, spare_keys, spare_code)
 
 
-@kernel
+@inline_kernel
 def event_before(pos_a, code_a, pos_b, code_b):
     return pos_a < pos_b or (pos_a == pos_b and code_a & 3 < code_b & 3)
 
