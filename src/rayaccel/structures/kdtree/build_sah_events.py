@@ -151,10 +151,8 @@ def _clip_straddling(straddling, n_straddling, ids, cell, axis, p, kind, geom, s
     """Events of the straddling primitives ``straddling[:n_straddling]`` (scene primitives
     ``ids[straddling]``) clipped to the two halves of ``cell`` split at ``p`` on
     ``axis``: rows ``new_pos[side, b, :fill[side, b]]`` (and ``new_code``) per side and
-    axis ``b``, each sorted. Returns how many primitives each side keeps."""
-    for side in range(2):
-        for b in range(3):
-            fill[side, b] = 0
+    axis ``b``, each sorted; ``fill`` arrives zeroed. Returns how many primitives each
+    side keeps."""
     kept_left = 0
     kept_right = 0
     for k in range(n_straddling):
@@ -170,8 +168,7 @@ def _clip_straddling(straddling, n_straddling, ids, cell, axis, p, kind, geom, s
                                            boxes[side, b], boxes[side, b + 3])
     for side in range(2):
         for b in range(3):
-            if fill[side, b] > 1:
-                sort_events(new_pos[side, b], new_code[side, b], fill[side, b])
+            sort_events(new_pos[side, b], new_code[side, b], fill[side, b])
     return kept_left, kept_right
 
 
