@@ -39,6 +39,17 @@ def test_sorted_batch_agrees_with_brute_force(small_dragon, incoherent_batch):
     assert_same_hits(reference, Hits(hits.t[subset], hits.prim[subset], hits.u[subset], hits.v[subset], None))
 
 
+@pytest.mark.parametrize("method", ["grid", "bvh-binned"])
+def test_sorted_batch_gives_the_same_sphere_coordinates(spheres, method):
+    batch = random_rays(spheres, MIN_RAYS + 999, seed=5)
+    accel = ra.build(spheres, method)
+    reordered = accel.intersect(*batch)
+    assert_same_hits(accel.intersect(*batch, reorder=False), reordered)
+    subset = slice(None, None, 29)
+    assert_same_hits(ra.build(spheres, "none").intersect(*(a[subset] for a in batch)),
+                     Hits(*(a[subset] for a in reordered[:4]), None))
+
+
 def test_sort_is_a_permutation_by_octant_then_origin(small_dragon, incoherent_batch):
     batch = prepare_rays(*incoherent_batch)
     bounds = small_dragon.bounds()

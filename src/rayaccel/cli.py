@@ -64,7 +64,7 @@ def _render(accel, args, quiet: bool, width: int, height: int):
     from .rays import Camera
     from .render import default_camera, render
 
-    camera = default_camera(accel.scene)
+    camera = default_camera(accel)
     if getattr(args, "eye", None) or getattr(args, "target", None):
         eye = _parse_vector(args.eye, "--eye") if args.eye else camera.eye
         target = _parse_vector(args.target, "--target") if args.target else camera.target

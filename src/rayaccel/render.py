@@ -16,6 +16,7 @@ import numpy as np
 
 from .rays import Camera
 from .scene import SPHERE
+from .structures.base import Accelerator
 
 __all__ = ["RenderResult", "default_camera", "default_lights", "render", "save_png", "save_heatmap"]
 
@@ -47,18 +48,26 @@ class RenderResult:
         return self.primary_rays / max(self.primary_seconds, 1e-12) / 1e6
 
 
+def _scene_box(scene_or_structure) -> tuple[np.ndarray, np.ndarray]:
+    if isinstance(scene_or_structure, Accelerator):
+        return scene_or_structure.scene_box
+    bounds = scene_or_structure.bounds()
+    return bounds.scene_lo, bounds.scene_hi
+
+
 def default_camera(scene) -> Camera:
-    """A camera that frames the whole scene, looking slightly down from the front right."""
-    b = scene.bounds()
-    return Camera.framing(b.scene_lo, b.scene_hi)
+    """A camera that frames the whole scene (or a built structure's scene), looking slightly
+    down from the front right."""
+    return Camera.framing(*_scene_box(scene))
 
 
 def default_lights(scene, camera: Camera | None = None) -> np.ndarray:
-    """One point light above and to the left of the camera, outside the scene."""
-    b = scene.bounds()
+    """One point light above and to the left of the camera, outside the scene (or a built
+    structure's scene)."""
+    lo, hi = _scene_box(scene)
     camera = camera or default_camera(scene)
-    center = 0.5 * (b.scene_lo + b.scene_hi)
-    radius = 0.5 * float(np.linalg.norm(b.scene_hi - b.scene_lo))
+    center = 0.5 * (lo + hi)
+    radius = 0.5 * float(np.linalg.norm(hi - lo))
     offset = camera.eye - center
     offset /= np.linalg.norm(offset)
     direction = offset + 0.9 * camera.true_up - 0.6 * camera.right
@@ -102,11 +111,11 @@ def render(accel, camera: Camera | None = None, width: int = 512, height: int = 
     progress : callable(done_rows, total_rows), optional
     """
     scene = accel.scene
-    camera = camera or default_camera(scene)
-    lights = default_lights(scene, camera) if lights is None else np.atleast_2d(np.asarray(lights, float))
+    camera = camera or default_camera(accel)
+    lights = default_lights(accel, camera) if lights is None else np.atleast_2d(np.asarray(lights, float))
     vertex_normals = scene.vertex_normals() if scene.kind != SPHERE else None
-    b = scene.bounds()
-    epsilon = 1e-6 * float(np.linalg.norm(b.scene_hi - b.scene_lo))
+    scene_lo, scene_hi = accel.scene_box
+    epsilon = 1e-6 * float(np.linalg.norm(scene_hi - scene_lo))
     image = np.empty((height * width, 3))
     nodes = np.zeros(height * width, dtype=np.int64)
     tests = np.zeros(height * width, dtype=np.int64)

@@ -15,9 +15,11 @@ import math
 
 import numpy as np
 
-from .._jit import inline_kernel
+from numba import prange
 
-__all__ = ["sphere_span", "intersect_sphere"]
+from .._jit import inline_kernel, parallel_kernel
+
+__all__ = ["sphere_span", "intersect_sphere", "sphere_hit_coords"]
 
 
 @inline_kernel
@@ -59,3 +61,25 @@ def intersect_sphere(geom, prim, ox, oy, oz, dx, dy, dz, t_min, t_max):
     if t_far >= t_min and t_far <= t_max:
         return t_far
     return np.inf
+
+
+@parallel_kernel
+def sphere_hit_coords(geom, origins, directions, t, prim, u, v):
+    """Texture coordinates of each ray's hit on its sphere, written into ``u`` and ``v``:
+    ``u = azimuth / 2pi`` in [0, 1), ``v = polar angle / pi`` in [0, 1] of the hit point
+    seen from the sphere's centre; NaN where ``prim`` is -1 (a miss)."""
+    for i in prange(prim.shape[0]):
+        p = prim[i]
+        if p < 0:
+            u[i] = np.nan
+            v[i] = np.nan
+            continue
+        inverse_r = 1.0 / geom[p, 3]
+        nx = (origins[i, 0] + t[i] * directions[i, 0] - geom[p, 0]) * inverse_r
+        ny = (origins[i, 1] + t[i] * directions[i, 1] - geom[p, 1]) * inverse_r
+        nz = (origins[i, 2] + t[i] * directions[i, 2] - geom[p, 2]) * inverse_r
+        turn = math.atan2(ny, nx) / (2.0 * math.pi)
+        if turn < 0.0:
+            turn += 1.0
+        u[i] = turn if turn < 1.0 else 0.0
+        v[i] = math.acos(min(max(nz, -1.0), 1.0)) / math.pi

@@ -8,9 +8,10 @@ import numpy as np
 
 from .._jit import inline_kernel
 from ..geometry.primitive import intersect_prim
+from ..geometry.sphere import sphere_hit_coords
 from ..ray_order import MIN_RAYS, coherent_batch
 from ..rays import Camera, Hits, RayCounters, prepare_rays
-from ..scene import SPHERE, Spheres, TriangleMesh
+from ..scene import SPHERE, PrimitiveBounds, Spheres, TriangleMesh
 
 __all__ = ["Accelerator", "is_closer", "intersect_references", "store_hit", "settled_before", "EXIT_MARGIN"]
 
@@ -110,40 +111,48 @@ class Accelerator:
             order (:mod:`rayaccel.ray_order`); the results are in the given order
             either way. ``False`` traces the rays in the given order.
         """
-        batch = prepare_rays(origins, directions, t_min, t_max)
-        n = len(batch.origins)
-        t = np.full(n, np.inf)
-        prim = np.full(n, -1, dtype=np.int64)
-        u = np.zeros(n)
-        v = np.zeros(n)
-        work = np.zeros((n if counters else 0, 3), dtype=np.int64)
-        if reorder and n >= MIN_RAYS:
-            batch = coherent_batch(batch, *self._scene_box)
-        if n:
-            self._trace(batch, bool(any_hit), t, prim, u, v, work)
-        hit = prim >= 0
-        if self.scene.kind == SPHERE and hit.any():
-            u[hit], v[hit] = self._sphere_uv(batch, t, prim, hit)
-        u[~hit] = np.nan
-        v[~hit] = np.nan
+        rays, t, prim, u, v, work = self._cast(origins, directions, t_min, t_max, bool(any_hit), counters, reorder)
+        if self.scene.kind == SPHERE:
+            sphere_hit_coords(self.scene.geometry, rays.origins, rays.directions, t, prim, u, v)
+        else:
+            miss = prim < 0
+            u[miss] = np.nan
+            v[miss] = np.nan
         ray_counters = RayCounters(work[:, 0].copy(), work[:, 1].copy(), work[:, 2].copy()) if counters else None
         return Hits(t, prim, u, v, ray_counters)
 
     def occluded(self, origins, directions, t_min=0.0, t_max=np.inf, *, reorder=True) -> np.ndarray:
         """(n,) bool: whether anything lies on each ray within ``[t_min, t_max]``."""
-        return self.intersect(origins, directions, t_min, t_max, any_hit=True, reorder=reorder).hit
+        prim = self._cast(origins, directions, t_min, t_max, True, False, reorder)[2]
+        return prim >= 0
+
+    def _cast(self, origins, directions, t_min, t_max, any_hit, counters, reorder):
+        """Validate the rays and trace them: ``(rays, t, prim, u, v, work)``, each in the order given."""
+        rays = prepare_rays(origins, directions, t_min, t_max)
+        n = len(rays.origins)
+        t = np.full(n, np.inf)
+        prim = np.full(n, -1, dtype=np.int64)
+        u = np.zeros(n)
+        v = np.zeros(n)
+        work = np.zeros((n if counters else 0, 3), dtype=np.int64)
+        batch = coherent_batch(rays, *self.scene_box) if reorder and n >= MIN_RAYS else rays
+        if n:
+            self._trace(batch, any_hit, t, prim, u, v, work)
+        return rays, t, prim, u, v, work
 
     @functools.cached_property
-    def _scene_box(self) -> tuple[np.ndarray, np.ndarray]:
+    def scene_box(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(lo, hi)``: the box around the whole scene, as the build saw it (computed on first
+        use for structures whose build needs no primitive boxes)."""
         bounds = self.scene.bounds()
         return bounds.scene_lo, bounds.scene_hi
 
-    def _sphere_uv(self, batch, t, prim, hit):
-        points = batch.origins[hit] + t[hit, None] * batch.directions[hit]
-        normal = (points - self.scene.centers[prim[hit]]) / self.scene.radii[prim[hit], None]
-        u = (np.arctan2(normal[:, 1], normal[:, 0]) / (2.0 * np.pi)) % 1.0
-        v = np.arccos(np.clip(normal[:, 2], -1.0, 1.0)) / np.pi
-        return u, v
+    def _primitive_bounds(self) -> PrimitiveBounds:
+        """The scene's primitive boxes, for a build; keeps the scene box for the queries and
+        the renderer, which would otherwise compute all the boxes again."""
+        bounds = self.scene.bounds()
+        self.scene_box = bounds.scene_lo, bounds.scene_hi
+        return bounds
 
     def _trace(self, batch, any_hit, t, prim, u, v, work) -> None:
         raise NotImplementedError
@@ -163,7 +172,6 @@ class Accelerator:
         result = {"method": self.method, "primitives": len(self.scene), "build_seconds": self.build_seconds}
         result.update(self._structure_stats())
         if origins is None:
-            bounds = self.scene.bounds()
-            origins, directions = Camera.framing(bounds.scene_lo, bounds.scene_hi).rays(128, 128)
+            origins, directions = Camera.framing(*self.scene_box).rays(128, 128)
         result.update(measured_stats(self, origins, directions))
         return result

@@ -87,7 +87,7 @@ class BoundingVolumeHierarchy(Accelerator):
             options["width"] = width
         super().__init__(scene, options)
         start = time.perf_counter()
-        prim_bounds = scene.bounds()
+        prim_bounds = self._primitive_bounds()
         box, first, count, order = self._build(prim_bounds, max_leaf_size, traversal_cost, intersection_cost,
                                                **builder_options)
         pad = _ROUNDING_PAD * float(np.abs(box[0]).max() + (box[0, 3:] - box[0, :3]).max())

@@ -53,7 +53,7 @@ class UniformGrid(Accelerator):
             raise ValueError(f"density must be a positive number, got {density!r}")
         super().__init__(scene, {"density": density, "resolution": resolution, "insert": insert, "mailbox": bool(mailbox)})
         start = time.perf_counter()
-        bounds = scene.bounds()
+        bounds = self._primitive_bounds()
         lo, hi = grid_box(bounds.scene_lo, bounds.scene_hi)
         res = self._resolution(resolution, density, hi - lo, len(scene))
         if resolution is None or isinstance(resolution, str):

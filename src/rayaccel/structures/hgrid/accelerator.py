@@ -53,7 +53,7 @@ class HierarchicalGrid(Accelerator):
         }
         super().__init__(scene, options)
         start = time.perf_counter()
-        self.hgrid = build_hierarchical_grid(scene.bounds(), scene.kind, scene.geometry, options["density"],
+        self.hgrid = build_hierarchical_grid(self._primitive_bounds(), scene.kind, scene.geometry, options["density"],
                                              options["threshold"], options["max_levels"], insert == "exact")
         self.build_seconds = time.perf_counter() - start
         self.mailboxes = MailboxPool(len(scene), enabled=options["mailbox"])

@@ -57,7 +57,7 @@ class GridBvh(Accelerator):
         }
         super().__init__(scene, options)
         start = time.perf_counter()
-        bounds = scene.bounds()
+        bounds = self._primitive_bounds()
         pad = _ROUNDING_PAD * float(np.abs(np.concatenate((bounds.scene_lo, bounds.scene_hi))).max()
                                     + (bounds.scene_hi - bounds.scene_lo).max())
         self.hybrid, self.bvh_depth = build_grid_bvh(

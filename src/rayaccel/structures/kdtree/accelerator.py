@@ -172,7 +172,7 @@ class KdTree(Accelerator):
 
     def _build(self, scene, threads, traversal_cost, intersection_cost, empty_bonus, leaf_size, max_depth, bins,
                exact_below):
-        bounds = scene.bounds()
+        bounds = self._primitive_bounds()
         lo, hi = grid_box(bounds.scene_lo, bounds.scene_hi)
         root_cell = np.concatenate((lo, hi))
         slack = 1e-11 * float(np.abs(root_cell).max() + (hi - lo).max())

@@ -53,7 +53,7 @@ class Octree(Accelerator):
         }
         super().__init__(scene, options)
         start = time.perf_counter()
-        bounds = scene.bounds()
+        bounds = self._primitive_bounds()
         lo, hi = grid_box(bounds.scene_lo, bounds.scene_hi)
         center, link, leaf_prims, depth = build_octree(bounds.lo, bounds.hi, scene.kind, scene.geometry,
                                                        insert == "exact", lo, hi, options["leaf_size"],
