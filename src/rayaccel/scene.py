@@ -2,8 +2,8 @@
 
 A scene hands the rest of the library three things, all flat arrays:
 
-* ``bounds()`` -- per-primitive boxes ``lo``, ``hi`` and ``centroid`` (n, 3), the only
-  thing builders see;
+* ``bounds()`` -- per-primitive boxes ``lo``, ``hi`` and ``centroid`` (n, 3) and the
+  scene's box, the only thing builders see;
 * ``kind`` -- :data:`TRIANGLE` or :data:`SPHERE`;
 * ``geometry`` -- the per-primitive data the intersection kernels read: for
   triangles the three vertices as one row of 9 floats, for spheres
@@ -16,12 +16,14 @@ import gzip
 import io
 import os
 import re
+from collections.abc import Callable
+from functools import partial
 from pathlib import Path
 
 import numpy as np
 
 from ._validate import as_index_triples, as_points, as_positive_int
-from .geometry.bounds import sphere_bounds, triangle_bounds
+from .geometry.bounds import sphere_bounds, sphere_centroids, triangle_bounds, triangle_centroids
 
 __all__ = [
     "TRIANGLE",
@@ -45,15 +47,22 @@ class MeshLoadError(ValueError):
 
 
 class PrimitiveBounds:
-    """Axis-aligned boxes of a scene's primitives: ``lo``, ``hi`` and ``centroid``, each (n, 3)."""
+    """Axis-aligned boxes of a scene's primitives: ``lo`` and ``hi``, each (n, 3), the box
+    ``scene_lo``..``scene_hi`` around them all, and ``centroid`` (n, 3), computed on first use."""
 
-    __slots__ = ("lo", "hi", "centroid", "scene_lo", "scene_hi")
+    __slots__ = ("lo", "hi", "scene_lo", "scene_hi", "_centroid", "_compute_centroid")
 
-    def __init__(self, lo: np.ndarray, hi: np.ndarray, centroid: np.ndarray):
-        self.lo, self.hi, self.centroid = lo, hi, centroid
-        # column by column: numpy reduces a strided column faster than axis=0 of an (n, 3) array
-        self.scene_lo = np.array([lo[:, axis].min() for axis in range(3)])
-        self.scene_hi = np.array([hi[:, axis].max() for axis in range(3)])
+    def __init__(self, lo: np.ndarray, hi: np.ndarray, scene_lo: np.ndarray, scene_hi: np.ndarray,
+                 compute_centroid: Callable[[], np.ndarray]):
+        self.lo, self.hi, self.scene_lo, self.scene_hi = lo, hi, scene_lo, scene_hi
+        self._compute_centroid = compute_centroid
+        self._centroid = None
+
+    @property
+    def centroid(self) -> np.ndarray:
+        if self._centroid is None:
+            self._centroid = self._compute_centroid()
+        return self._centroid
 
 
 class TriangleMesh:
@@ -82,7 +91,7 @@ class TriangleMesh:
         return f"TriangleMesh({len(self.vertices)} vertices, {len(self.faces)} triangles)"
 
     def bounds(self) -> PrimitiveBounds:
-        return PrimitiveBounds(*triangle_bounds(self.geometry))
+        return PrimitiveBounds(*triangle_bounds(self.geometry), partial(triangle_centroids, self.geometry))
 
     def face_normals(self) -> np.ndarray:
         """Unit normals (F, 3) by the right-hand rule; zero for degenerate faces."""
@@ -137,7 +146,7 @@ class Spheres:
         return f"Spheres({len(self.centers)})"
 
     def bounds(self) -> PrimitiveBounds:
-        return PrimitiveBounds(*sphere_bounds(self.geometry))
+        return PrimitiveBounds(*sphere_bounds(self.geometry), partial(sphere_centroids, self.geometry))
 
 
 def random_spheres(n: int, seed: int = 0, fill: float = 0.05) -> Spheres:

@@ -1,42 +1,101 @@
-"""Per-primitive bounding boxes and centroids, the only view of a scene that builders get."""
+"""Per-primitive bounding boxes and centroids, the only view of a scene that builders get.
+
+The boxes and the scene's box come from one parallel pass: each chunk of
+primitives reduces its own part of the scene box, so the scene box costs no
+second pass over the boxes. Centroids are a separate kernel, as only the BVH
+builders read them.
+"""
 
 from __future__ import annotations
 
 import numpy as np
 from numba import prange
 
-from .._jit import parallel_kernel
+from .._jit import inline_kernel, parallel_kernel, thread_count
+from ..counting_sort import chunk_range
 
-__all__ = ["triangle_bounds", "sphere_bounds"]
+__all__ = ["triangle_bounds", "sphere_bounds", "triangle_centroids", "sphere_centroids"]
+
+
+@inline_kernel
+def _grow(chunk_box, c, k, lo, hi):
+    chunk_box[c, k] = min(chunk_box[c, k], lo)
+    chunk_box[c, k + 3] = max(chunk_box[c, k + 3], hi)
+
+
+@inline_kernel
+def _scene_box(chunk_box):
+    scene_lo = np.empty(3)
+    scene_hi = np.empty(3)
+    for k in range(3):
+        scene_lo[k] = chunk_box[:, k].min()
+        scene_hi[k] = chunk_box[:, k + 3].max()
+    return scene_lo, scene_hi
 
 
 @parallel_kernel
-def triangle_bounds(geometry):
-    """``(lo, hi, centroid)``, each (n, 3), of triangles stored as rows of 9 floats."""
+def _triangle_bounds(geometry, n_chunks):
     n = geometry.shape[0]
     lo = np.empty((n, 3))
     hi = np.empty((n, 3))
-    centroid = np.empty((n, 3))
-    for p in prange(n):
-        for k in range(3):
-            a, b, c = geometry[p, k], geometry[p, 3 + k], geometry[p, 6 + k]
-            lo[p, k] = min(a, b, c)
-            hi[p, k] = max(a, b, c)
-            centroid[p, k] = (a + b + c) / 3.0
-    return lo, hi, centroid
+    chunk_box = np.empty((n_chunks, 6))
+    for c in prange(n_chunks):
+        chunk_box[c, :3] = np.inf
+        chunk_box[c, 3:] = -np.inf
+        first, end = chunk_range(n, n_chunks, c)
+        for p in range(first, end):
+            for k in range(3):
+                a, b, d = geometry[p, k], geometry[p, 3 + k], geometry[p, 6 + k]
+                lo[p, k] = min(a, b, d)
+                hi[p, k] = max(a, b, d)
+                _grow(chunk_box, c, k, lo[p, k], hi[p, k])
+    scene_lo, scene_hi = _scene_box(chunk_box)
+    return lo, hi, scene_lo, scene_hi
 
 
 @parallel_kernel
-def sphere_bounds(geometry):
-    """``(lo, hi, centroid)``, each (n, 3), of spheres stored as rows ``x, y, z, r``."""
+def _sphere_bounds(geometry, n_chunks):
     n = geometry.shape[0]
     lo = np.empty((n, 3))
     hi = np.empty((n, 3))
+    chunk_box = np.empty((n_chunks, 6))
+    for c in prange(n_chunks):
+        chunk_box[c, :3] = np.inf
+        chunk_box[c, 3:] = -np.inf
+        first, end = chunk_range(n, n_chunks, c)
+        for p in range(first, end):
+            r = geometry[p, 3]
+            for k in range(3):
+                lo[p, k] = geometry[p, k] - r
+                hi[p, k] = geometry[p, k] + r
+                _grow(chunk_box, c, k, lo[p, k], hi[p, k])
+    scene_lo, scene_hi = _scene_box(chunk_box)
+    return lo, hi, scene_lo, scene_hi
+
+
+def triangle_bounds(geometry: np.ndarray):
+    """``(lo, hi, scene_lo, scene_hi)``: the boxes (n, 3) of triangles stored as rows of 9
+    floats, and the box (3,) around them all."""
+    return _triangle_bounds(geometry, thread_count())
+
+
+def sphere_bounds(geometry: np.ndarray):
+    """``(lo, hi, scene_lo, scene_hi)``: the boxes (n, 3) of spheres stored as rows
+    ``x, y, z, r``, and the box (3,) around them all."""
+    return _sphere_bounds(geometry, thread_count())
+
+
+@parallel_kernel
+def triangle_centroids(geometry):
+    """(n, 3) vertex means of triangles stored as rows of 9 floats."""
+    n = geometry.shape[0]
     centroid = np.empty((n, 3))
     for p in prange(n):
-        r = geometry[p, 3]
         for k in range(3):
-            lo[p, k] = geometry[p, k] - r
-            hi[p, k] = geometry[p, k] + r
-            centroid[p, k] = geometry[p, k]
-    return lo, hi, centroid
+            centroid[p, k] = (geometry[p, k] + geometry[p, 3 + k] + geometry[p, 6 + k]) / 3.0
+    return centroid
+
+
+def sphere_centroids(geometry: np.ndarray) -> np.ndarray:
+    """(n, 3) centres of spheres stored as rows ``x, y, z, r``, as a new array (builders reorder it)."""
+    return geometry[:, :3].copy()
