@@ -131,7 +131,8 @@ def _cmd_stats(args) -> None:
 def _cmd_demo(args) -> None:
     from rich.table import Table
 
-    from ._progress import table_console
+    from ._progress import status, table_console
+    from .render import warm_up
     from .structures.registry import methods
 
     console = table_console()
@@ -143,6 +144,8 @@ def _cmd_demo(args) -> None:
         table.add_column(column, justify="right")
     written = []
     for method in methods():
+        with status(f"{method}: compiling its kernels (first run only, then cached)", enabled=not args.quiet):
+            warm_up([method], [scene.kind])
         accel = _build(scene, method, {}, args.quiet)
         size = args.size
         if method == "none":

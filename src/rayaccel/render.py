@@ -15,10 +15,10 @@ from pathlib import Path
 import numpy as np
 
 from .rays import Camera
-from .scene import SPHERE
+from .scene import SPHERE, TRIANGLE, load_scene
 from .structures.base import Accelerator
 
-__all__ = ["RenderResult", "default_camera", "default_lights", "render", "save_png", "save_heatmap"]
+__all__ = ["RenderResult", "default_camera", "default_lights", "render", "save_png", "save_heatmap", "warm_up"]
 
 _BAND_ROWS = 64
 _BACKGROUND_TOP = np.array([0.10, 0.12, 0.16])
@@ -159,6 +159,19 @@ def render(accel, camera: Camera | None = None, width: int = 512, height: int = 
     result.nodes = nodes.reshape(height, width)
     result.tests = tests.reshape(height, width)
     return result
+
+
+def warm_up(methods, kinds=(TRIANGLE, SPHERE)) -> None:
+    """Compile (or load from Numba's cache) every kernel that building and rendering with these
+    methods uses for these primitive kinds, on small scenes (large enough for the kd-tree's
+    binned top levels), so that nothing timed afterwards compiles."""
+    from .structures.registry import build
+
+    small = {TRIANGLE: "dragon-11k", SPHERE: "spheres:5000"}
+    for kind in kinds:
+        scene = load_scene(small[kind])
+        for method in methods:
+            render(build(scene, method), width=8, height=8)
 
 
 def save_png(image: np.ndarray, path) -> Path:

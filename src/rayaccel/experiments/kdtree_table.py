@@ -16,12 +16,12 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
-from ..render import default_camera, render
+from ..render import default_camera, render, warm_up
 from ..scene import load_scene
 from ..structures.registry import build
 from ._report import build_and_render_bars, markdown_table
 
-__all__ = ["DEFAULT_SCENES", "ROWS", "run", "write_report", "warm_up"]
+__all__ = ["DEFAULT_SCENES", "ROWS", "run", "write_report"]
 
 DEFAULT_SCENES = ("dragon", "dragon-203k", "armadillo", "buddha", "bunny", "forest", "forest-large-chair",
                   "forest-small-chair")
@@ -41,17 +41,6 @@ ROWS = (
     ("avg # nodes / ray", "avg_nodes_per_ray", "{:.1f}"),
     ("avg # intersections / ray", "avg_intersections_per_ray", "{:.2f}"),
 )
-
-
-def warm_up(methods) -> None:
-    """Compile (or load from Numba's cache) every kernel the methods use, so nothing timed compiles."""
-    tiny = load_scene("spheres:64")
-    for method in methods:
-        accel = build(tiny, method)
-        render(accel, default_camera(tiny), 8, 8)
-    mesh = load_scene("cornell-box")
-    for method in methods:
-        render(build(mesh, method), default_camera(mesh), 8, 8)
 
 
 def measure(name: str, scene, method: str, side: int) -> tuple[dict, object]:

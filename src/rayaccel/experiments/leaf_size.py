@@ -14,11 +14,10 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from .._timing import median_seconds
-from ..render import default_camera
+from ..render import default_camera, warm_up
 from ..scene import load_scene
 from ..structures.registry import build
 from ._report import markdown_table, new_figure, save_figure
-from .kdtree_table import warm_up
 
 __all__ = ["LEAF_SIZES", "SWEPT", "LeafSizeRow", "run", "write_report"]
 

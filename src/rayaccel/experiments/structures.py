@@ -12,11 +12,11 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from ..render import save_heatmap, save_png
+from ..render import save_heatmap, save_png, warm_up
 from ..scene import load_scene
 from ..structures.registry import methods as all_methods
 from ._report import build_and_render_bars, markdown_table
-from .kdtree_table import measure, warm_up
+from .kdtree_table import measure
 
 __all__ = ["run", "write_report"]
 
