@@ -23,7 +23,8 @@ from pathlib import Path
 import numpy as np
 
 from ._validate import as_index_triples, as_points, as_positive_int
-from .geometry.bounds import sphere_bounds, sphere_centroids, triangle_bounds, triangle_centroids
+from .geometry.bounds import primitive_bounds, sphere_centroids, triangle_centroids
+from .geometry.kinds import SPHERE, TRIANGLE
 
 __all__ = [
     "TRIANGLE",
@@ -37,9 +38,6 @@ __all__ = [
     "load_scene",
     "data_directory",
 ]
-
-TRIANGLE = 0
-SPHERE = 1
 
 
 class MeshLoadError(ValueError):
@@ -91,7 +89,7 @@ class TriangleMesh:
         return f"TriangleMesh({len(self.vertices)} vertices, {len(self.faces)} triangles)"
 
     def bounds(self) -> PrimitiveBounds:
-        return PrimitiveBounds(*triangle_bounds(self.geometry), partial(triangle_centroids, self.geometry))
+        return PrimitiveBounds(*primitive_bounds(TRIANGLE, self.geometry), partial(triangle_centroids, self.geometry))
 
     def face_normals(self) -> np.ndarray:
         """Unit normals (F, 3) by the right-hand rule; zero for degenerate faces."""
@@ -146,7 +144,7 @@ class Spheres:
         return f"Spheres({len(self.centers)})"
 
     def bounds(self) -> PrimitiveBounds:
-        return PrimitiveBounds(*sphere_bounds(self.geometry), partial(sphere_centroids, self.geometry))
+        return PrimitiveBounds(*primitive_bounds(SPHERE, self.geometry), partial(sphere_centroids, self.geometry))
 
 
 def random_spheres(n: int, seed: int = 0, fill: float = 0.05) -> Spheres:

@@ -13,76 +13,47 @@ from numba import prange
 
 from .._jit import inline_kernel, parallel_kernel, thread_count
 from ..counting_sort import chunk_range
+from .kinds import SPHERE
 
-__all__ = ["triangle_bounds", "sphere_bounds", "triangle_centroids", "sphere_centroids"]
-
-
-@inline_kernel
-def _grow(chunk_box, c, k, lo, hi):
-    chunk_box[c, k] = min(chunk_box[c, k], lo)
-    chunk_box[c, k + 3] = max(chunk_box[c, k + 3], hi)
+__all__ = ["primitive_bounds", "triangle_centroids", "sphere_centroids"]
 
 
 @inline_kernel
-def _scene_box(chunk_box):
+def _extent(kind, geometry, p, k):
+    """``(lo, hi)`` of primitive ``p`` on axis ``k``."""
+    if kind == SPHERE:
+        return geometry[p, k] - geometry[p, 3], geometry[p, k] + geometry[p, 3]
+    a, b, c = geometry[p, k], geometry[p, 3 + k], geometry[p, 6 + k]
+    return min(a, b, c), max(a, b, c)
+
+
+@parallel_kernel
+def _primitive_bounds(kind, geometry, n_chunks):
+    n = geometry.shape[0]
+    lo = np.empty((n, 3))
+    hi = np.empty((n, 3))
+    chunk_box = np.empty((n_chunks, 6))
+    for c in prange(n_chunks):
+        chunk_box[c, :3] = np.inf
+        chunk_box[c, 3:] = -np.inf
+        first, end = chunk_range(n, n_chunks, c)
+        for p in range(first, end):
+            for k in range(3):
+                lo[p, k], hi[p, k] = _extent(kind, geometry, p, k)
+                chunk_box[c, k] = min(chunk_box[c, k], lo[p, k])
+                chunk_box[c, k + 3] = max(chunk_box[c, k + 3], hi[p, k])
     scene_lo = np.empty(3)
     scene_hi = np.empty(3)
     for k in range(3):
         scene_lo[k] = chunk_box[:, k].min()
         scene_hi[k] = chunk_box[:, k + 3].max()
-    return scene_lo, scene_hi
-
-
-@parallel_kernel
-def _triangle_bounds(geometry, n_chunks):
-    n = geometry.shape[0]
-    lo = np.empty((n, 3))
-    hi = np.empty((n, 3))
-    chunk_box = np.empty((n_chunks, 6))
-    for c in prange(n_chunks):
-        chunk_box[c, :3] = np.inf
-        chunk_box[c, 3:] = -np.inf
-        first, end = chunk_range(n, n_chunks, c)
-        for p in range(first, end):
-            for k in range(3):
-                a, b, d = geometry[p, k], geometry[p, 3 + k], geometry[p, 6 + k]
-                lo[p, k] = min(a, b, d)
-                hi[p, k] = max(a, b, d)
-                _grow(chunk_box, c, k, lo[p, k], hi[p, k])
-    scene_lo, scene_hi = _scene_box(chunk_box)
     return lo, hi, scene_lo, scene_hi
 
 
-@parallel_kernel
-def _sphere_bounds(geometry, n_chunks):
-    n = geometry.shape[0]
-    lo = np.empty((n, 3))
-    hi = np.empty((n, 3))
-    chunk_box = np.empty((n_chunks, 6))
-    for c in prange(n_chunks):
-        chunk_box[c, :3] = np.inf
-        chunk_box[c, 3:] = -np.inf
-        first, end = chunk_range(n, n_chunks, c)
-        for p in range(first, end):
-            r = geometry[p, 3]
-            for k in range(3):
-                lo[p, k] = geometry[p, k] - r
-                hi[p, k] = geometry[p, k] + r
-                _grow(chunk_box, c, k, lo[p, k], hi[p, k])
-    scene_lo, scene_hi = _scene_box(chunk_box)
-    return lo, hi, scene_lo, scene_hi
-
-
-def triangle_bounds(geometry: np.ndarray):
-    """``(lo, hi, scene_lo, scene_hi)``: the boxes (n, 3) of triangles stored as rows of 9
-    floats, and the box (3,) around them all."""
-    return _triangle_bounds(geometry, thread_count())
-
-
-def sphere_bounds(geometry: np.ndarray):
-    """``(lo, hi, scene_lo, scene_hi)``: the boxes (n, 3) of spheres stored as rows
-    ``x, y, z, r``, and the box (3,) around them all."""
-    return _sphere_bounds(geometry, thread_count())
+def primitive_bounds(kind: int, geometry: np.ndarray):
+    """``(lo, hi, scene_lo, scene_hi)``: the boxes (n, 3) of the primitives, triangles stored as
+    rows of 9 floats or spheres as rows ``x, y, z, r``, and the box (3,) around them all."""
+    return _primitive_bounds(kind, geometry, thread_count())
 
 
 @parallel_kernel
