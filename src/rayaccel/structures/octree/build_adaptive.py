@@ -9,9 +9,12 @@ and is not made, nor one that would more than quadruple the references (large
 primitives crowding a corner); one that leaves them all in a single octant
 still cuts off empty space and is made.
 
-Each level is built in two parallel passes over the cells being split (count
-the references per octant, then write them after a prefix sum), so the build
-is breadth first and the eight children of a node are allocated side by side.
+Each level is built in two parallel passes over the cells being split: the
+first finds each reference's octants (kept as an 8-bit mask, so the overlap
+tests run once) and counts the references per octant, the second writes them
+after a prefix sum. The build is breadth first and the eight children of a
+node are allocated side by side. Only cells over the leaf size get octant
+counts, as the deep levels hold millions of cells that stay leaves.
 Primitives go into the octants their bounding box overlaps, or with ``exact``
 only those they really overlap (triangle-box SAT, sphere-box distance). Octant
 boxes are grown by ``pad`` so that a primitive touching a plane is found on
@@ -23,27 +26,29 @@ from __future__ import annotations
 import numpy as np
 from numba import prange
 
-from ..._jit import kernel, parallel_kernel
+from ..._jit import inline_kernel, kernel, parallel_kernel
 from ...geometry.overlap import prim_overlaps_box
 from ..build_arrays import reserve_rows
 
 __all__ = ["build_octree"]
 
 
-@kernel
+@inline_kernel
 def _octant_span(lo, hi, center, pad):
     """For one axis: whether a box ``lo..hi`` reaches the lower and the upper half."""
     return lo <= center + pad, hi >= center - pad
 
 
-@kernel
-def _visit_octants(prim, prim_lo, prim_hi, kind, geom, exact, center, half, pad, counts, row, out, cursor):
-    """Count (``out`` empty) or write the octants of ``prim`` for the node in row ``row``."""
-    below_x, above_x = _octant_span(prim_lo[prim, 0], prim_hi[prim, 0], center[0], pad[0])
-    below_y, above_y = _octant_span(prim_lo[prim, 1], prim_hi[prim, 1], center[1], pad[1])
-    below_z, above_z = _octant_span(prim_lo[prim, 2], prim_hi[prim, 2], center[2], pad[2])
+@inline_kernel
+def _octant_mask(prim, prim_lo, prim_hi, kind, geom, exact, cx, cy, cz, hx, hy, hz, px, py, pz):
+    """Bit ``o`` set for each octant ``o`` (x, y, z upper half at bits 0, 1, 2) of the cell with
+    centre ``c``, half size ``h`` and insertion pad ``p`` that primitive ``prim`` goes into."""
+    below_x, above_x = _octant_span(prim_lo[prim, 0], prim_hi[prim, 0], cx, px)
+    below_y, above_y = _octant_span(prim_lo[prim, 1], prim_hi[prim, 1], cy, py)
+    below_z, above_z = _octant_span(prim_lo[prim, 2], prim_hi[prim, 2], cz, pz)
     # a box inside one octant certainly meets it: only a primitive spanning several needs the test
     test = exact and ((below_x and above_x) or (below_y and above_y) or (below_z and above_z))
+    mask = 0
     for octant in range(8):
         bx = octant & 1
         by = (octant >> 1) & 1
@@ -51,29 +56,47 @@ def _visit_octants(prim, prim_lo, prim_hi, kind, geom, exact, center, half, pad,
         if not ((above_x if bx else below_x) and (above_y if by else below_y) and (above_z if bz else below_z)):
             continue
         if test:
-            cx = center[0] + (0.5 if bx else -0.5) * half[0]
-            cy = center[1] + (0.5 if by else -0.5) * half[1]
-            cz = center[2] + (0.5 if bz else -0.5) * half[2]
-            if not prim_overlaps_box(kind, geom, prim, cx, cy, cz, 0.5 * half[0] + pad[0], 0.5 * half[1] + pad[1],
-                                     0.5 * half[2] + pad[2]):
+            ox = cx + (0.5 if bx else -0.5) * hx
+            oy = cy + (0.5 if by else -0.5) * hy
+            oz = cz + (0.5 if bz else -0.5) * hz
+            if not prim_overlaps_box(kind, geom, prim, ox, oy, oz, 0.5 * hx + px, 0.5 * hy + py, 0.5 * hz + pz):
                 continue
-        if out.shape[0] == 0:
-            counts[row, octant] += 1
-        else:
-            out[cursor[row, octant]] = prim
-            cursor[row, octant] += 1
+        mask |= 1 << octant
+    return mask
 
 
 @parallel_kernel
-def _split_level(refs, ref_first, centers, halves, split, prim_lo, prim_hi, kind, geom, exact, pad_fraction,
-                 counts, out, cursor):
-    for row in prange(split.shape[0]):
-        if not split[row]:
+def _count_octants(refs, ref_first, centers, halves, slot, prim_lo, prim_hi, kind, geom, exact, pad_fraction,
+                   counts, masks):
+    """For every row with ``slot[row] >= 0``: each reference's octant mask into ``masks`` and the
+    references per octant into ``counts[slot[row]]``."""
+    for row in prange(slot.shape[0]):
+        c = slot[row]
+        if c < 0:
             continue
-        pad = halves[row] * pad_fraction
+        cx, cy, cz = centers[row, 0], centers[row, 1], centers[row, 2]
+        hx, hy, hz = halves[row, 0], halves[row, 1], halves[row, 2]
+        px, py, pz = hx * pad_fraction, hy * pad_fraction, hz * pad_fraction
         for k in range(ref_first[row], ref_first[row + 1]):
-            _visit_octants(refs[k], prim_lo, prim_hi, kind, geom, exact, centers[row], halves[row], pad, counts,
-                           row, out, cursor)
+            mask = _octant_mask(refs[k], prim_lo, prim_hi, kind, geom, exact, cx, cy, cz, hx, hy, hz, px, py, pz)
+            masks[k] = mask
+            for octant in range(8):
+                counts[c, octant] += (mask >> octant) & 1
+
+
+@parallel_kernel
+def _write_octants(refs, ref_first, slot, masks, cursor, out):
+    """For every row with ``slot[row] >= 0``: each reference into the octants of its mask, at the
+    cursors ``cursor[slot[row]]``."""
+    for row in prange(slot.shape[0]):
+        c = slot[row]
+        if c < 0:
+            continue
+        for k in range(ref_first[row], ref_first[row + 1]):
+            for octant in range(8):
+                if (masks[k] >> octant) & 1:
+                    out[cursor[c, octant]] = refs[k]
+                    cursor[c, octant] += 1
 
 
 @kernel
@@ -97,41 +120,55 @@ def build_octree(prim_lo, prim_hi, kind, geom, exact, lo, hi, leaf_size, max_dep
     depth = 0
     while rows.shape[0] > 0:
         m = rows.shape[0]
-        split = np.zeros(m, dtype=np.bool_)
+        # only rows over the leaf size get octant counts: deep levels hold millions of small cells
+        slot = np.full(m, -1, dtype=np.int64)
+        n_candidates = 0
         for r in range(m):
-            split[r] = ref_first[r + 1] - ref_first[r] > leaf_size and depth < max_depth
-        counts = np.zeros((m, 8), dtype=np.int64)
-        _split_level(refs, ref_first, centers, halves, split, prim_lo, prim_hi, kind, geom, exact, pad_fraction,
-                     counts, np.empty(0, dtype=np.int32), counts)
+            if ref_first[r + 1] - ref_first[r] > leaf_size and depth < max_depth:
+                slot[r] = n_candidates
+                n_candidates += 1
+        counts = np.zeros((n_candidates, 8), dtype=np.int64)
+        masks = np.empty(refs.shape[0], dtype=np.uint8)
+        _count_octants(refs, ref_first, centers, halves, slot, prim_lo, prim_hi, kind, geom, exact, pad_fraction,
+                       counts, masks)
         n_split = 0
+        leaf_refs = 0
         for r in range(m):
-            if split[r]:
+            count = ref_first[r + 1] - ref_first[r]
+            c = slot[r]
+            if c >= 0:
                 nonempty = 0
                 separated = False
+                total = 0
                 for octant in range(8):
-                    nonempty += counts[r, octant] > 0
-                    separated |= 0 < counts[r, octant] < ref_first[r + 1] - ref_first[r]
-                count = ref_first[r + 1] - ref_first[r]
-                split[r] = (separated and counts[r].sum() <= 4 * count) or nonempty == 1
-            n_split += split[r]
+                    nonempty += counts[c, octant] > 0
+                    separated |= 0 < counts[c, octant] < count
+                    total += counts[c, octant]
+                if not ((separated and total <= 4 * count) or nonempty == 1):
+                    slot[r] = -1
+            if slot[r] >= 0:
+                n_split += 1
+            else:
+                leaf_refs += count
         child_base = n_nodes
         node_center = reserve_rows(node_center, n_nodes + 8 * n_split)
         node_link = reserve_rows(node_link, n_nodes + 8 * n_split)
+        leaf_prims = reserve_rows(leaf_prims, n_refs + leaf_refs)
         next_first = np.zeros(8 * n_split + 1, dtype=np.int64)
-        cursor = np.zeros((m, 8), dtype=np.int64)
+        cursor = np.zeros((n_candidates, 8), dtype=np.int64)
         next_rows = np.empty(8 * n_split, dtype=np.int64)
         next_centers = np.empty((8 * n_split, 3))
         next_halves = np.empty((8 * n_split, 3))
         k = 0
         for r in range(m):
             node = rows[r]
-            count = ref_first[r + 1] - ref_first[r]
-            if not split[r]:
-                leaf_prims = reserve_rows(leaf_prims, n_refs + count)
-                leaf_prims[n_refs:n_refs + count] = refs[ref_first[r]:ref_first[r + 1]]
+            c = slot[r]
+            if c < 0:
                 node_link[node, 0] = n_refs
-                node_link[node, 1] = count
-                n_refs += count
+                node_link[node, 1] = ref_first[r + 1] - ref_first[r]
+                for j in range(ref_first[r], ref_first[r + 1]):
+                    leaf_prims[n_refs] = refs[j]
+                    n_refs += 1
                 continue
             node_link[node, 0] = child_base + k
             node_link[node, 1] = -1
@@ -142,14 +179,13 @@ def build_octree(prim_lo, prim_hi, kind, geom, exact, lo, hi, leaf_size, max_dep
                     bit = (octant >> axis) & 1
                     next_halves[k, axis] = 0.5 * halves[r, axis]
                     next_centers[k, axis] = centers[r, axis] + (0.5 if bit else -0.5) * halves[r, axis]
-                node_center[child] = next_centers[k]
-                cursor[r, octant] = next_first[k]
-                next_first[k + 1] = next_first[k] + counts[r, octant]
+                    node_center[child, axis] = next_centers[k, axis]
+                cursor[c, octant] = next_first[k]
+                next_first[k + 1] = next_first[k] + counts[c, octant]
                 k += 1
         n_nodes = child_base + k
         next_refs = np.empty(next_first[k], dtype=np.int32)
-        _split_level(refs, ref_first, centers, halves, split, prim_lo, prim_hi, kind, geom, exact, pad_fraction,
-                     counts, next_refs, cursor)
+        _write_octants(refs, ref_first, slot, masks, cursor, next_refs)
         refs = next_refs
         ref_first = next_first
         rows = next_rows
