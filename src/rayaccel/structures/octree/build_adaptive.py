@@ -120,7 +120,6 @@ def build_octree(prim_lo, prim_hi, kind, geom, exact, lo, hi, leaf_size, max_dep
     depth = 0
     while rows.shape[0] > 0:
         m = rows.shape[0]
-        # only rows over the leaf size get octant counts: deep levels hold millions of small cells
         slot = np.full(m, -1, dtype=np.int64)
         n_candidates = 0
         for r in range(m):
