@@ -95,7 +95,7 @@ def _normals(scene, hits_prim, u, v, points, vertex_normals):
 
 
 def render(accel, camera: Camera | None = None, width: int = 512, height: int = 512, lights=None,
-           shadows: bool = True, progress=None) -> RenderResult:
+           shadows: bool = True, progress=None, pixels=None) -> RenderResult:
     """Render ``accel.scene`` through ``camera`` with Lambert shading and hard shadows.
 
     Parameters
@@ -109,6 +109,9 @@ def render(accel, camera: Camera | None = None, width: int = 512, height: int = 
     shadows : bool
         Cast one shadow ray per hit and light.
     progress : callable(done_rows, total_rows), optional
+    pixels : array_like of int, optional
+        Render only these flat pixel indices (row-major), leaving the others black with no
+        work counted: a sample of a frame too slow to render whole. All pixels when None.
     """
     scene = accel.scene
     camera = camera or default_camera(accel)
@@ -116,21 +119,25 @@ def render(accel, camera: Camera | None = None, width: int = 512, height: int = 
     vertex_normals = scene.vertex_normals() if scene.kind != SPHERE else None
     scene_lo, scene_hi = accel.scene_box
     epsilon = 1e-6 * float(np.linalg.norm(scene_hi - scene_lo))
-    image = np.empty((height * width, 3))
+    image = np.zeros((height * width, 3))
     nodes = np.zeros(height * width, dtype=np.int64)
     tests = np.zeros(height * width, dtype=np.int64)
     result = RenderResult(image=image, nodes=nodes, tests=tests)
-    for row in range(0, height, _BAND_ROWS):
-        pixels = np.arange(row * width, min(row + _BAND_ROWS, height) * width)
-        origins, directions = camera.rays(width, height, pixels)
+    rendered = np.arange(height * width) if pixels is None else np.asarray(pixels, dtype=np.int64).ravel()
+    if len(rendered) and (rendered.min() < 0 or rendered.max() >= height * width):
+        raise ValueError(f"pixels must be flat indices in [0, {height * width}) for a {width}x{height} image")
+    band = _BAND_ROWS * width
+    for first in range(0, len(rendered), band):
+        band_pixels = rendered[first:first + band]
+        origins, directions = camera.rays(width, height, band_pixels)
         start = time.perf_counter()
         hits = accel.intersect(origins, directions, counters=True)
         result.primary_seconds += time.perf_counter() - start
-        result.primary_rays += len(pixels)
-        nodes[pixels] = hits.counters.nodes
-        tests[pixels] = hits.counters.tests
-        sky = (pixels // width / max(height - 1, 1))[:, None]
-        image[pixels] = (1 - sky) * _BACKGROUND_TOP + sky * _BACKGROUND_BOTTOM
+        result.primary_rays += len(band_pixels)
+        nodes[band_pixels] = hits.counters.nodes
+        tests[band_pixels] = hits.counters.tests
+        sky = (band_pixels // width / max(height - 1, 1))[:, None]
+        image[band_pixels] = (1 - sky) * _BACKGROUND_TOP + sky * _BACKGROUND_BOTTOM
         h = hits.hit
         if h.any():
             prim = hits.prim[h]
@@ -152,9 +159,9 @@ def render(accel, camera: Camera | None = None, width: int = 512, height: int = 
                     result.shadow_rays += int(lit.sum())
                     lambert[np.flatnonzero(lit)[blocked]] = 0.0
                 color = color + albedo * lambert[:, None] * (0.92 / len(lights))
-            image[pixels[h]] = color
+            image[band_pixels[h]] = color
         if progress is not None:
-            progress(min(row + _BAND_ROWS, height), height)
+            progress(round(height * min(first + band, len(rendered)) / max(len(rendered), 1)), height)
     result.image = image.reshape(height, width, 3)
     result.nodes = nodes.reshape(height, width)
     result.tests = tests.reshape(height, width)
