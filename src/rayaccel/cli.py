@@ -131,7 +131,7 @@ def _cmd_stats(args) -> None:
 def _cmd_demo(args) -> None:
     from rich.table import Table
 
-    from ._progress import status, table_console
+    from ._progress import progress_bar, table_console
     from .render import warm_up
     from .structures.registry import methods
 
@@ -142,10 +142,11 @@ def _cmd_demo(args) -> None:
     table.add_column("method", no_wrap=True, min_width=len(max(methods(), key=len)))
     for column in ("build s", "image", "Mrays/s", "cells or nodes/ray", "tests/ray", "shadow Mrays/s"):
         table.add_column(column, justify="right")
+    with progress_bar("compiling kernels (first run only, then cached)", len(methods()),
+                      enabled=not args.quiet) as advance:
+        warm_up(methods(), [scene.kind], progress=advance)
     written = []
     for method in methods():
-        with status(f"{method}: compiling its kernels (first run only, then cached)", enabled=not args.quiet):
-            warm_up([method], [scene.kind])
         accel = _build(scene, method, {}, args.quiet)
         size = args.size
         if method == "none":

@@ -168,17 +168,20 @@ def render(accel, camera: Camera | None = None, width: int = 512, height: int = 
     return result
 
 
-def warm_up(methods, kinds=(TRIANGLE, SPHERE)) -> None:
+def warm_up(methods, kinds=(TRIANGLE, SPHERE), progress=None) -> None:
     """Compile (or load from Numba's cache) every kernel that building and rendering with these
     methods uses for these primitive kinds, on small scenes (large enough for the kd-tree's
-    binned top levels), so that nothing timed afterwards compiles."""
+    binned top levels), so that nothing timed afterwards compiles; ``progress(done, total)``
+    after each method."""
     from .structures.registry import build
 
     small = {TRIANGLE: "dragon-11k", SPHERE: "spheres:5000"}
-    for kind in kinds:
-        scene = load_scene(small[kind])
-        for method in methods:
+    scenes = [load_scene(small[kind]) for kind in kinds]
+    for done, method in enumerate(methods, 1):
+        for scene in scenes:
             render(build(scene, method), width=8, height=8)
+        if progress is not None:
+            progress(done, len(methods))
 
 
 def save_png(image: np.ndarray, path) -> Path:

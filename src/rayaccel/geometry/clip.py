@@ -26,7 +26,7 @@ from __future__ import annotations
 import numpy as np
 
 from .._jit import inline_kernel, kernel
-from ..scene import TRIANGLE
+from .kinds import TRIANGLE
 from .overlap import sphere_overlaps_box
 
 __all__ = ["CLIP_VERTICES", "split_clipped_bounds"]

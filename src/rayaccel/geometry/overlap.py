@@ -13,7 +13,7 @@ Both tests treat the box as closed; callers pad it for a conservative answer.
 from __future__ import annotations
 
 from .._jit import kernel
-from ..scene import TRIANGLE
+from .kinds import TRIANGLE
 
 __all__ = ["prim_overlaps_box"]
 

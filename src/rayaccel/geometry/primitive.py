@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from .._jit import inline_kernel
-from ..scene import TRIANGLE
+from .kinds import TRIANGLE
 from .sphere import intersect_sphere
 from .triangle import intersect_triangle, shear_setup
 
