@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import ast
+import os
 import sys
 from pathlib import Path
 
@@ -235,12 +236,17 @@ def _cmd_experiment(args) -> None:
 
 def _cmd_calibrate(args) -> None:
     from .scene import SPHERE, TRIANGLE
-    from .structures.grid.calibrate import cache_path, cost_ratio
+    from .structures.grid.calibrate import RATIO_VARIABLE, cache_path, calibration
 
     for name, kind in (("triangle", TRIANGLE), ("sphere", SPHERE)):
-        ratio = cost_ratio(kind, refresh=True)
-        print(f"{name}: C_i / C_c = {ratio:.2f}  ->  cost-model grid has {2 * ratio:.1f} cells per primitive")
+        entry = calibration(kind, refresh=True)
+        print(f"{name}: C_i = {entry['intersection_seconds'] * 1e9:.2f} ns, C_c = {entry['cell_step_seconds'] * 1e9:.2f} ns, "
+              f"per-ray set-up {entry['ray_setup_seconds'] * 1e9:.1f} ns; C_i / C_c = {entry['ratio']:.2f} "
+              f"+- {entry['uncertainty']:.1%} ({entry['source']}, {entry['attempts']} attempt(s))  ->  "
+              f"cost-model grid has {2 * entry['ratio']:.1f} cells per primitive")
     print(f"cached in {cache_path()}")
+    if os.environ.get(RATIO_VARIABLE):
+        print(f"note: {RATIO_VARIABLE} is set, and grids use its ratio instead")
 
 
 def _cmd_methods(args) -> None:

@@ -5,8 +5,11 @@ per ray, least at ``R = 2 n C_i / C_c`` (see
 :mod:`rayaccel.structures.grid.build_uniform`). This experiment builds grids
 with densities from 1/4 to 64 cells per primitive, times closest-hit primary
 rays (and the build), and marks the cost model's optimum, with ``C_i`` and
-``C_c`` calibrated on this machine, and the lecture's 8 cells per primitive on
-the measured curve.
+``C_c`` calibrated on this machine (:mod:`rayaccel.structures.grid.calibrate`)
+and the calibration's relative uncertainty as a band around it, the fastest
+measured density, and the lecture's 8 cells per primitive on the measured
+curve, so that a reader sees whether ``2 n C_i / C_c`` lands where the time
+is lowest.
 """
 
 from __future__ import annotations
@@ -18,7 +21,7 @@ from pathlib import Path
 from .._timing import median_seconds
 from ..render import default_camera
 from ..scene import load_scene
-from ..structures.grid.calibrate import cost_ratio
+from ..structures.grid.calibrate import calibration
 from ..structures.registry import build
 from ._report import markdown_table, new_figure, save_figure
 
@@ -37,6 +40,7 @@ class ResolutionRow:
     cells_per_ray: float
     tests_per_ray: float
     model_density: float
+    model_uncertainty: float
 
 
 def run(scenes=("bunny", "spheres:100000"), densities=DENSITIES, side: int = 512, progress=None) -> list[ResolutionRow]:
@@ -45,14 +49,16 @@ def run(scenes=("bunny", "spheres:100000"), densities=DENSITIES, side: int = 512
     for s, name in enumerate(scenes):
         scene = load_scene(name)
         rays = default_camera(scene).rays(side, side)
-        model_density = 2.0 * cost_ratio(scene.kind)
+        model = calibration(scene.kind)
+        model_density = 2.0 * model["ratio"]
         for d, density in enumerate(densities):
             grid = build(scene, "grid", density=density)
             build_seconds = median_seconds(lambda: build(scene, "grid", density=density), repeats=3)
             trace = median_seconds(lambda: grid.intersect(*rays), repeats=3)
             counters = grid.intersect(*rays, counters=True).counters
             rows.append(ResolutionRow(name, density, grid.grid.n_cells, build_seconds, trace,
-                                      float(counters.nodes.mean()), float(counters.tests.mean()), model_density))
+                                      float(counters.nodes.mean()), float(counters.tests.mean()), model_density,
+                                      float(model["uncertainty"])))
             if progress is not None:
                 progress(s * len(densities) + d + 1, total)
     return rows
@@ -66,8 +72,11 @@ def write_report(rows: list[ResolutionRow], out_dir, side: int) -> tuple[Path, P
     for name in scenes:
         mine = [r for r in rows if r.scene == name]
         best = min(mine, key=lambda r: r.build_seconds + r.trace_seconds)
-        lines += [f"**{name}**: cost model optimum {mine[0].model_density:.1f} cells per primitive "
-                  f"(R = 2 n C_i / C_c with C_i / C_c measured here); fastest measured: density {best.density:g}.", ""]
+        fastest_trace = min(mine, key=lambda r: r.trace_seconds)
+        lines += [f"**{name}**: cost model optimum {mine[0].model_density:.1f} "
+                  f"+- {mine[0].model_uncertainty:.0%} cells per primitive (R = 2 n C_i / C_c with C_i / C_c "
+                  f"calibrated here); fastest trace measured at density {fastest_trace.density:g}, "
+                  f"fastest build + trace at {best.density:g}.", ""]
     headers = ["scene", "cells per primitive", "cells", "build s", "trace s", "build + trace s", "cells/ray",
                "tests/ray"]
     table = [[r.scene, f"{r.density:g}", f"{r.cells:,}", f"{r.build_seconds:.4f}", f"{r.trace_seconds:.4f}",
@@ -82,8 +91,14 @@ def write_report(rows: list[ResolutionRow], out_dir, side: int) -> tuple[Path, P
         ax.loglog([r.density for r in mine], [r.build_seconds + r.trace_seconds for r in mine], "o-", color=f"C{i}",
                   label=f"{name}: build + trace")
         ax.loglog([r.density for r in mine], [r.trace_seconds for r in mine], ":", color=f"C{i}", label=f"{name}: trace")
-        ax.axvline(mine[0].model_density, color=f"C{i}", alpha=0.5, linestyle="--",
-                   label=f"{name}: cost model 2 C_i / C_c = {mine[0].model_density:.1f}")
+        model, spread = mine[0].model_density, mine[0].model_uncertainty
+        ax.axvline(model, color=f"C{i}", alpha=0.6, linestyle="--",
+                   label=f"{name}: cost model 2 C_i / C_c = {model:.1f} +- {spread:.0%}")
+        if spread > 0:
+            ax.axvspan(model * (1 - spread), model * (1 + spread), color=f"C{i}", alpha=0.15)
+        fastest = min(mine, key=lambda r: r.trace_seconds)
+        ax.plot([fastest.density], [fastest.trace_seconds], "*", color=f"C{i}", markersize=12,
+                label=f"{name}: fastest trace measured")
     ax.axvline(8.0, color="grey", alpha=0.4, label="lecture: 8 cells per primitive")
     ax.set(xlabel="cells per primitive", ylabel="seconds", title="grid resolution against the cost model")
     ax.grid(True, which="both", alpha=0.3)
