@@ -6,7 +6,8 @@ times per primitive kind, first on the machine as it is, then with one
 busy-looping process per core started beside it, and prints per kind and
 condition: how many calibrations fell back to the default ratio, how many
 needed a retry, the ratio's median, min, max and max/min, and the median
-reported uncertainty. The cache is not touched.
+reported uncertainty, beside the one-minute load average at the end of the
+runs (busy-looping processes of our own included). The cache is not touched.
 
     python benchmarks/bench_calibration.py [--runs 20] [--conditions idle busy]
 """
@@ -52,11 +53,11 @@ def main() -> None:
     parser.add_argument("--runs", type=int, default=20)
     parser.add_argument("--conditions", nargs="+", default=["idle", "busy"], choices=["idle", "busy"])
     args = parser.parse_args()
-    console = Console()
+    console = Console(width=150)
     for kind in (TRIANGLE, SPHERE):
         cal.calibrate(kind)
     table = Table(title=f"grid cost calibration, {args.runs} in a row per kind and condition")
-    for column in ("kind", "condition", "fallbacks", "retried", "median C_i/C_c", "min", "max", "max/min",
+    for column in ("kind", "condition", "load average", "fallbacks", "retried", "median C_i/C_c", "min", "max", "max/min",
                    "median uncertainty"):
         table.add_column(column, justify="left" if column in ("kind", "condition") else "right")
     with Progress(console=console) as progress:
@@ -73,7 +74,7 @@ def main() -> None:
                     measured = np.array([e["ratio"] for e in entries if e["source"] == "measured"])
                     spread = [f"{measured.min():.3f}", f"{measured.max():.3f}",
                               f"{measured.max() / measured.min():.3f}"] if len(measured) else ["-"] * 3
-                    table.add_row(name, condition, str(sum(e["source"] == "default" for e in entries)),
+                    table.add_row(name, condition, f"{os.getloadavg()[0]:.1f}", str(sum(e["source"] == "default" for e in entries)),
                                   str(sum(e["attempts"] > 1 for e in entries)),
                                   f"{np.median(measured):.3f}" if len(measured) else "-", *spread,
                                   f"{np.median([e['uncertainty'] for e in entries]):.1%}")

@@ -59,7 +59,7 @@ __all__ = ["calibrate", "calibration", "cost_ratio", "cache_path", "fit_slope", 
 
 KIND_NAMES = {TRIANGLE: "triangle", SPHERE: "sphere"}
 # C_i / C_c measured on a 2-core x86-64 VM (benchmarks/bench_calibration.py, medians of 20 calibrations).
-DEFAULT_RATIOS = {TRIANGLE: 2.4, SPHERE: 0.9}
+DEFAULT_RATIOS = {TRIANGLE: 2.3, SPHERE: 0.9}
 MAX_UNCERTAINTY = 0.15
 ATTEMPTS = 3
 RATIO_VARIABLE = "RAYACCEL_GRID_COST_RATIO"
