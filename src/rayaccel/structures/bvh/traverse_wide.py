@@ -1,6 +1,7 @@
 """Stack traversal of the four-wide BVH (:mod:`.wide`), closest hit and any hit.
 
-At a wide node the ray tests the four child boxes, orders the ones it enters
+At a wide node the ray tests the four child boxes at once
+(:func:`.wide_slab.enter_children`, vector instructions), orders the ones it enters
 before its best hit by entry distance (a five-comparator sorting network on
 registers), pushes all but the nearest, farthest first, and descends into the
 nearest. Leaf children are pushed like inner ones (the nearest too) and their
@@ -9,8 +10,8 @@ Whatever is pushed is prefetched, so its memory arrives while the ray works
 on nearer children (measured on the dragon's incoherent rays: +20-25 %
 against the binary walk, where the wide layout alone gave +5-14 %). An entry
 popped beyond the best hit found since it was pushed is skipped. A ray that misses
-the whole tree's box stops there, before testing four boxes. The slab test is
-:func:`.traverse.enter_box`'s, with the same NaN-safe comparisons.
+the whole tree's box stops there, before testing four boxes. The slab test computes
+exactly what :func:`.traverse.enter_box` computes, with the same NaN-safe comparisons.
 """
 
 from __future__ import annotations
@@ -21,34 +22,10 @@ from numba import prange
 from ..._jit import inline_kernel, parallel_kernel, prefetch, thread_id
 from ...geometry.primitive import intersect_prim, ray_setup
 from ..base import is_closer, store_hit
-from .traverse import enter_box, tighten
-from .wide import UNUSED
+from .traverse import enter_box
+from .wide_slab import enter_children
 
 __all__ = ["wide_trace_kernel"]
-
-
-@inline_kernel
-def _enter_child(records, node, c, ox, oy, oz, ix, iy, iz, near_x, near_y, near_z, t_min, t_max):
-    """Entry distance into child ``c``'s box of wide ``node``, inf if the ray misses it;
-    ``near_*`` is the box component of the near face on each axis (lo where the
-    direction is positive: 0, 1, 2; else hi: 3, 4, 5), chosen once per ray."""
-    enter, exit_ = tighten((records[node, 4 * near_x + c] - ox) * ix, (records[node, 4 * (3 - near_x) + c] - ox) * ix,
-                           t_min, t_max)
-    enter, exit_ = tighten((records[node, 4 * near_y + c] - oy) * iy, (records[node, 4 * (5 - near_y) + c] - oy) * iy,
-                           enter, exit_)
-    enter, exit_ = tighten((records[node, 4 * near_z + c] - oz) * iz, (records[node, 4 * (7 - near_z) + c] - oz) * iz,
-                           enter, exit_)
-    return enter if enter <= exit_ else np.inf
-
-
-@inline_kernel
-def _child_entry(records, links, node, c, ox, oy, oz, ix, iy, iz, near_x, near_y, near_z, t_min, t_max):
-    """``(entry distance, link, count)`` of child ``c``; inf for an unused slot or a miss."""
-    count = links[node, 28 + c]
-    if count == UNUSED:
-        return np.inf, 0, 0
-    return (_enter_child(records, node, c, ox, oy, oz, ix, iy, iz, near_x, near_y, near_z, t_min, t_max),
-            links[node, 24 + c], count)
 
 
 @inline_kernel
@@ -89,6 +66,8 @@ def wide_trace_kernel(root_box, records, links, prim_order, kind, geom, origins,
         ray = ray_setup(ox, oy, oz, dx, dy, dz)
         tid = thread_id()
         ix, iy, iz = 1.0 / dx, 1.0 / dy, 1.0 / dz
+        origin = (ox, oy, oz)
+        inv_dir = (ix, iy, iz)
         near_x = 0 if ix >= 0.0 else 3
         near_y = 1 if iy >= 0.0 else 4
         near_z = 2 if iz >= 0.0 else 5
@@ -105,14 +84,9 @@ def wide_trace_kernel(root_box, records, links, prim_order, kind, geom, origins,
             node = -1
         while node >= 0:
             n_nodes += 1
-            t0, l0, c0 = _child_entry(records, links, node, 0, ox, oy, oz, ix, iy, iz, near_x, near_y, near_z,
-                                      ray_t_min, best_t)
-            t1, l1, c1 = _child_entry(records, links, node, 1, ox, oy, oz, ix, iy, iz, near_x, near_y, near_z,
-                                      ray_t_min, best_t)
-            t2, l2, c2 = _child_entry(records, links, node, 2, ox, oy, oz, ix, iy, iz, near_x, near_y, near_z,
-                                      ray_t_min, best_t)
-            t3, l3, c3 = _child_entry(records, links, node, 3, ox, oy, oz, ix, iy, iz, near_x, near_y, near_z,
-                                      ray_t_min, best_t)
+            t0, t1, t2, t3 = enter_children(records, node, near_x, near_y, near_z, origin, inv_dir, ray_t_min, best_t)
+            l0, l1, l2, l3 = links[node, 24], links[node, 25], links[node, 26], links[node, 27]
+            c0, c1, c2, c3 = links[node, 28], links[node, 29], links[node, 30], links[node, 31]
             t0, l0, c0, t1, l1, c1 = _in_order(t0, l0, c0, t1, l1, c1)
             t2, l2, c2, t3, l3, c3 = _in_order(t2, l2, c2, t3, l3, c3)
             t0, l0, c0, t2, l2, c2 = _in_order(t0, l0, c0, t2, l2, c2)

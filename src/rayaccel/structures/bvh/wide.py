@@ -19,7 +19,8 @@ against 17.3 binary ones).
 * column ``24 + c`` (read as int32): child ``c``'s wide node index, or for a
   leaf child the offset of its first primitive in ``prim_order``;
 * column ``28 + c`` (read as int32): 0 for an inner child, the primitive count
-  of a leaf child, -1 for an unused slot.
+  of a leaf child, -1 for an unused slot, whose box is empty (lo = +inf,
+  hi = -inf), so that no ray enters it and the traversal needs no test for it.
 
 Node 0 is the root; a binary tree that is a single leaf becomes a root with
 one leaf child.
@@ -90,6 +91,9 @@ def _pack(slots, child_wide, node_box, node_first, node_count, records, links):
         for c in range(WIDTH):
             binary = slots[wide, c]
             if binary < 0:
+                for j in range(3):
+                    records[wide, 4 * j + c] = np.inf
+                    records[wide, 4 * (j + 3) + c] = -np.inf
                 links[wide, 28 + c] = UNUSED
                 continue
             for j in range(6):
