@@ -204,3 +204,42 @@ def test_random_scenes_property(n, seed, method, volume, leaf):
     accel = ra.build(scene, method, max_leaf_size=leaf, **volume)
     assert_same_hits(reference, accel.intersect(origins, directions))
     assert (accel.bvh.node_count <= leaf).all()
+
+
+@settings(max_examples=60, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), zero_axes=st.sets(st.integers(0, 2)), on_plane=st.booleans(),
+       scale=st.sampled_from([1e-20, 1e-3, 1.0, 1e7, 1e20]))
+def test_vector_child_test_equals_the_scalar_slab_test(seed, zero_axes, on_plane, scale):
+    """The four-lane slab test of the wide layout culls exactly what the scalar test culls, for
+    zero direction components of either sign, origins on slab planes, and any magnitude."""
+    from numba import njit
+
+    from rayaccel.structures.bvh.traverse import enter_box
+    from rayaccel.structures.bvh.wide_slab import enter_children
+
+    @njit(error_model="numpy")
+    def both(records, boxes, node, o, d, t_min, t_max):
+        inv = (1.0 / d[0], 1.0 / d[1], 1.0 / d[2])
+        near = (0 if inv[0] >= 0.0 else 3, 1 if inv[1] >= 0.0 else 4, 2 if inv[2] >= 0.0 else 5)
+        vector = enter_children(records, node, near[0], near[1], near[2], (o[0], o[1], o[2]), inv, t_min, t_max)
+        scalar = [enter_box(boxes, c, o[0], o[1], o[2], inv[0], inv[1], inv[2], near[0], near[1], near[2], t_min,
+                            t_max) for c in range(4)]
+        return vector, scalar
+
+    rng = np.random.default_rng(seed)
+    lo = (rng.uniform(-1, 1, (4, 3)) * scale).astype(np.float32)
+    hi = lo + (rng.uniform(0, 1, (4, 3)) * scale).astype(np.float32)
+    records = np.zeros((1, 32), dtype=np.float32)
+    records[0, :12] = lo.T.ravel()
+    records[0, 12:24] = hi.T.ravel()
+    boxes = np.hstack([lo, hi]).astype(np.float64)
+    origin = rng.uniform(-2, 2, 3) * scale
+    direction = rng.normal(size=3)
+    for axis in zero_axes:
+        direction[axis] = rng.choice([0.0, -0.0])
+        if on_plane:
+            origin[axis] = lo[rng.integers(4), axis]
+    if not direction.any():
+        direction[0] = 1.0
+    vector, scalar = both(records, boxes, 0, origin, direction, 0.0, np.inf)
+    np.testing.assert_array_equal(np.array(vector), np.array(scalar))
