@@ -102,5 +102,5 @@ def write_report(rows: list[ResolutionRow], out_dir, side: int) -> tuple[Path, P
     ax.axvline(8.0, color="grey", alpha=0.4, label="lecture: 8 cells per primitive")
     ax.set(xlabel="cells per primitive", ylabel="seconds", title="grid resolution against the cost model")
     ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize=7)
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.02, 1.0))
     return path, save_figure(fig, out_dir / "grid-resolution.png")
