@@ -223,18 +223,14 @@ def load_mesh(source) -> TriangleMesh:
 
 
 def data_directory() -> Path:
-    """The folder of the meshes rayaccel ships (``$RAYACCEL_DATA`` overrides it)."""
+    """The folder of the meshes rayaccel ships inside the package, with their credits in
+    ``SOURCES.md`` (``$RAYACCEL_DATA`` overrides it)."""
     override = os.environ.get("RAYACCEL_DATA")
-    if override:
-        return Path(override)
-    for parent in Path(__file__).resolve().parents:
-        candidate = parent / "data" / "meshes"
-        if candidate.is_dir():
-            return candidate
-    raise MeshLoadError(
-        "the shipped meshes were not found; install rayaccel from its source tree "
-        "(pip install -e .) or set RAYACCEL_DATA to a folder holding them"
-    )
+    folder = Path(override) if override else Path(__file__).resolve().parent / "data" / "meshes"
+    if not folder.is_dir():
+        raise MeshLoadError(f"the shipped meshes were not found in {folder}; reinstall rayaccel, or set RAYACCEL_DATA "
+                            "to a folder holding them")
+    return folder
 
 
 _BUILTIN_MESHES = {

@@ -1,8 +1,9 @@
 """The lecture's "which BVH is better": every BVH builder on real scenes, measured.
 
-For each scene and builder: build seconds, SAH cost (the expected cost of
-DESIGN.md section 4 with the builder's C_t and C_i), nodes, depth, measured
-nodes and primitive tests per primary ray, and closest-hit and any-hit
+For each scene and builder: build seconds, SAH cost (the expected cost
+``C_t * sum_inner SA / SA_root + C_i * sum_leaves n SA / SA_root`` with the
+builder's C_t and C_i), nodes, depth, measured nodes and primitive tests per
+primary ray, and closest-hit and any-hit
 throughput on primary (pinhole camera) and incoherent (random origins in the
 scene box, uniform directions) rays. Writes ``bvh.md``, a plot of build time
 against trace time and SAH cost, and node-visit heatmaps of every builder on

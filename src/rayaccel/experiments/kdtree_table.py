@@ -3,7 +3,7 @@
 One column per scene, the lecture's rows exactly: triangles, leaf nodes,
 non-empty leaf nodes, construction time, average triangles per non-empty leaf,
 the expected traversal steps, leaves visited, intersections and cost per ray
-from surface areas (DESIGN.md section 4; for rays that hit the root box), the
+from surface areas (:mod:`rayaccel.stats`; for rays that hit the root box), the
 render time of one frame (primary rays plus one shadow ray per hit), and the
 measured average nodes and intersections per primary ray. The default scenes
 are the scanned meshes and the procedural forest scenes of

@@ -53,7 +53,7 @@ class BruteForce(Accelerator):
         n = len(self.scene)
         return {
             "nodes": 1, "leaves": 1, "nonempty_leaves": 1, "max_depth": 0, "references": n,
-            "avg_prims_per_nonempty_leaf": float(n), "bytes": 0,
+            "avg_prims_per_nonempty_leaf": float(n), "bytes": self.scene.geometry.nbytes,
             "expected_traversal_steps": 0.0, "expected_leaves_visited": 1.0,
             "expected_intersections": float(n), "expected_cost": float(n),
         }

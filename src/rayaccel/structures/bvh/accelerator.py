@@ -147,7 +147,8 @@ class BoundingVolumeHierarchy(Accelerator):
             "max_depth": self.max_depth,
             "references": int(b.node_count.sum()),
             "avg_prims_per_nonempty_leaf": float(b.node_count[leaf].mean()),
-            "bytes": b.traversal_bytes + self._volume_rows.nbytes + self.geometry.nbytes,
+            "bytes": (b.traversal_bytes + self._volume_rows.nbytes + self.geometry.nbytes
+                      + (self.wide.nbytes if self.wide is not None else 0)),
         }
         sa = surface_area_stats(areas[0], step_areas=areas[~leaf], leaf_areas=areas[leaf],
                                 leaf_counts=b.node_count[leaf],

@@ -97,7 +97,7 @@ class UniformGrid(Accelerator):
             "max_depth": 1,
             "references": int(g.cell_first[-1]),
             "avg_prims_per_nonempty_leaf": float(g.cell_first[-1]) / max(nonempty, 1),
-            "bytes": g.nbytes,
+            "bytes": g.nbytes + self.scene.geometry.nbytes + self.mailboxes.nbytes,
         }
         cell_areas = np.full(n_cells, box_area(np.zeros(3), g.cell_size))
         # Every cell entered is one DDA step, so cells count as traversal steps too.

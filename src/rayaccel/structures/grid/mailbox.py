@@ -29,6 +29,11 @@ class MailboxPool:
         self._free = []
         self._next_stamp = 0
 
+    @property
+    def nbytes(self) -> int:
+        """Memory of one mailbox, which every query reads: a stamp per primitive and thread."""
+        return numba.config.NUMBA_NUM_THREADS * self.n_prims * 8 if self.enabled else 0
+
     @contextlib.contextmanager
     def lend(self, n_rays: int):
         """Yield ``(mailbox, base)``: a mailbox no other call is using (empty when

@@ -86,7 +86,7 @@ class HierarchicalGrid(Accelerator):
             "max_depth": int(h.grid_level.max()) + 1,
             "references": int(h.cell_first[-1]),
             "avg_prims_per_nonempty_leaf": float(h.cell_first[-1]) / max(nonempty, 1),
-            "bytes": h.nbytes,
+            "bytes": h.nbytes + self.scene.geometry.nbytes + self.mailboxes.nbytes,
         }
         # every cell entered, at any level, is one DDA step
         result.update(surface_area_stats(box_area(h.lo, h.hi), step_areas=cell_area, leaf_areas=cell_area[leaf],

@@ -103,7 +103,7 @@ class GridBvh(Accelerator):
             "max_depth": 1 + self.bvh_depth,
             "references": int(h.cell_first[-1]),
             "avg_prims_per_nonempty_leaf": float(leaf_counts.sum()) / max(nonempty, 1),
-            "bytes": h.nbytes,
+            "bytes": h.nbytes + self.scene.geometry.nbytes + self.mailboxes.nbytes,
         }
         steps = np.concatenate((np.full(n_cells, cell_area), node_areas))
         leaf_areas = np.concatenate((np.full(int((~in_bvh).sum()), cell_area), node_areas[leaf]))
