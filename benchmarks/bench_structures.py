@@ -123,6 +123,7 @@ class Subject:
     label = "?"
     short = "?"  # for narrow cells
     is_peer = True
+    is_baseline = False  # the peer every row is also compared with: Embree on all cores
     group: str | None = None
     build_seconds = 0.0
 
@@ -168,7 +169,7 @@ class EmbreePeer(Subject):
 
     def __init__(self, mesh, threads: int = 1):
         self.scene, self.build_seconds = timed_builds(lambda: self._build(mesh))
-        self.threads = threads
+        self.threads, self.is_baseline = threads, threads == CORES
         self.label, self.short = self._label(threads), f"Embree {threads}T"
 
     @staticmethod
@@ -177,7 +178,8 @@ class EmbreePeer(Subject):
 
     def with_threads(self, threads: int) -> EmbreePeer:
         """The same BVH, queried on ``threads`` threads."""
-        return self.variant(self._label(threads), f"Embree {threads}T", threads=threads)
+        return self.variant(self._label(threads), f"Embree {threads}T", threads=threads,
+                            is_baseline=threads == CORES)
 
     @staticmethod
     def _build(mesh):
@@ -309,14 +311,16 @@ class MitsubaPeer(Subject):
 
 @dataclass
 class Row:
-    """One subject's figures in one scene: Mrays/s and agreement with the reference per column."""
+    """One subject's figures in one scene, per column: Mrays/s, and the number of rays whose answer
+    differs from the reference's."""
 
     label: str
     short: str
     is_peer: bool
+    is_baseline: bool
     build: float
     rates: dict[str, float] = field(default_factory=dict)
-    agreement: dict[str, float] = field(default_factory=dict)
+    differ: dict[str, int] = field(default_factory=dict)
     note: str = ""
 
 
@@ -325,6 +329,7 @@ class SceneResult:
     name: str
     triangles: int
     ray_counts: dict[str, int]
+    hit_share: dict[str, float]  # per column
     rows: list[Row]
 
     def best_peer(self, column: str) -> Row | None:
@@ -332,15 +337,14 @@ class SceneResult:
         return max(peers, key=lambda row: row.rates[column]) if peers else None
 
     def embree_all_cores(self) -> Row | None:
-        return next((row for row in self.rows if row.label.startswith("Embree") and f"{CORES} thread" in row.label),
-                    None)
+        return next((row for row in self.rows if row.is_baseline), None)
 
 
 def build_subjects(scene, methods: list[str], competitors: set[str], progress: Progress) -> list[Subject]:
     """rayaccel's structures, the as-given row and every available peer, each built and timed."""
     makers = [(f"rayaccel {m}", lambda m=m: [RayaccelSubject(scene, m)]) for m in methods]
     if "embreex" in competitors:
-        makers.append(("Embree", lambda: [(e := EmbreePeer(scene)), e.with_threads(CORES)]))
+        makers.append(("Embree", lambda: [(e := EmbreePeer(scene)), *([e.with_threads(CORES)] * (CORES > 1))]))
     if "open3d" in competitors:
         makers.append(("Open3D", lambda: [Open3dPeer(scene)]))
     if "mitsuba" in competitors:
@@ -378,11 +382,13 @@ def _calls(subjects: list[Subject], rays: dict[str, RaySet]) -> list[tuple[int, 
     return calls
 
 
-def measure(subjects: list[Subject], rays: dict[str, RaySet], scene_name: str, progress: Progress) -> list[Row]:
+def measure(subjects: list[Subject], rays: dict[str, RaySet], scene_name: str,
+            progress: Progress) -> tuple[list[Row], dict[str, float]]:
     """Every subject's Mrays/s per column, the median of ``ROUNDS`` interleaved rounds after one
-    warm-up round whose answers are compared with the first subject's."""
+    warm-up round whose answers are compared with the first subject's; and the share of rays
+    that hit something per column, by the first subject's answers."""
     calls = _calls(subjects, rays)
-    rows = [Row(s.label, s.short, s.is_peer, s.build_seconds) for s in subjects]
+    rows = [Row(s.label, s.short, s.is_peer, s.is_baseline, s.build_seconds) for s in subjects]
     seconds = {(i, column): [] for i, column, _ in calls}
     reference = {}
     task = progress.add_task(scene_name, total=len(calls) * (ROUNDS + 1))
@@ -395,14 +401,16 @@ def measure(subjects: list[Subject], rays: dict[str, RaySet], scene_name: str, p
             elapsed = time.perf_counter() - start
             if round_ == 0:
                 expected = reference.setdefault(column, answer)
-                rows[i].agreement[column] = float(np.mean(np.asarray(answer) == expected))
+                rows[i].differ[column] = int(np.count_nonzero(np.asarray(answer) != expected))
             else:
                 seconds[i, column].append(elapsed)
             progress.advance(task)
     progress.remove_task(task)
     for (i, column), times in seconds.items():
         rows[i].rates[column] = len(rays[column.split()[0]]) / float(np.median(times)) / 1e6
-    return _merge_variants(rows, subjects)
+    hit_share = {column: float(np.mean(np.asarray(answer) >= 0 if "closest" in column else answer))
+                 for column, answer in reference.items()}
+    return _merge_variants(rows, subjects), hit_share
 
 
 def _merge_variants(rows: list[Row], subjects: list[Subject]) -> list[Row]:
@@ -415,13 +423,13 @@ def _merge_variants(rows: list[Row], subjects: list[Subject]) -> list[Row]:
         else:
             groups.setdefault(subject.group, []).append(row)
             if len(groups[subject.group]) == 1:
-                merged.append(Row(subject.group, subject.short, row.is_peer, row.build))
+                merged.append(Row(subject.group, subject.short, row.is_peer, row.is_baseline, row.build))
     for group, variants in groups.items():
         row = next(r for r in merged if r.label == group)
         winners = []
         for column in COLUMNS:
             best = max(variants, key=lambda r: r.rates[column])
-            row.rates[column], row.agreement[column] = best.rates[column], best.agreement[column]
+            row.rates[column], row.differ[column] = best.rates[column], best.differ[column]
             winners.append(f"{column}: {best.label.removeprefix(group).strip(', ')}")
         others = "; ".join(f"{v.label.removeprefix(group).strip(', ')} " + ", ".join(
             f"{v.rates[c]:.3g}" for c in COLUMNS) for v in variants)
@@ -435,8 +443,8 @@ def bench_scene(name: str, methods: list[str], side: int, competitors: set[str],
     progress.remove_task(task)
     subjects = build_subjects(scene, methods, competitors, progress)
     rays = ray_sets(scene, side, subjects[0])
-    rows = measure(subjects, rays, name, progress)
-    return SceneResult(name, len(scene.faces), {k: len(v) for k, v in rays.items()}, rows)
+    rows, hit_share = measure(subjects, rays, name, progress)
+    return SceneResult(name, len(scene.faces), {k: len(v) for k, v in rays.items()}, hit_share, rows)
 
 
 def _ratio_rows(result: SceneResult, baseline) -> list[list[str]]:
@@ -449,6 +457,11 @@ def _ratio_rows(result: SceneResult, baseline) -> list[list[str]]:
             cells.append(f"{row.rates[column] / base.rates[column]:.3g}" if base else "-")
         rows.append([row.label, *cells])
     return rows
+
+
+def _agreement(differ: int, n: int) -> str:
+    """The share of ``n`` answers that agree, and how many differ."""
+    return f"{1 - differ / n:.3%} ({differ:,} differ)" if differ else "100% (all)"
 
 
 def scene_tables(result: SceneResult) -> list[tuple[str, list[str], list[list[str]]]]:
@@ -466,9 +479,12 @@ def scene_tables(result: SceneResult) -> list[tuple[str, list[str], list[list[st
     if embree:
         tables.append((f"{result.name}: Mrays/s relative to {embree.label}", header,
                        _ratio_rows(result, lambda column: embree)))
-    tables.append((f"{result.name}: answers agreeing with {result.rows[0].label}'s (same primitive for closest "
-                   "hit, same verdict for any hit)", header,
-                   [[r.label, *(f"{r.agreement[c]:.2%}" for c in COLUMNS)] for r in result.rows]))
+    agreement = (f"{result.name}: answers agreeing with {result.rows[0].label}'s (same primitive for closest hit, "
+                 "same verdict for any hit)")
+    hits = ["(rays that hit)", *(f"{result.hit_share[c]:.1%}" for c in COLUMNS)]
+    tables.append((agreement, header, [hits] +
+                   [[r.label, *(_agreement(r.differ[c], result.ray_counts[c.split()[0]]) for c in COLUMNS)]
+                    for r in result.rows]))
     return tables
 
 
@@ -514,9 +530,9 @@ def write_markdown(results: list[SceneResult], competitors: set[str], path: Path
     missing = [COMPETITORS[name] for name in COMPETITORS if name not in competitors]
     lines = ["# rayaccel against its peers", "", *(f"- {item}" for item in environment()),
              f"- {ROUNDS} interleaved rounds, medians; build: median of {BUILD_REPEATS} builds",
-             f"- shadow rays: from the primary hits toward a point light at the framing camera's eye raised by "
-             f"the scene's bounding radius along +y, over t in [{SHADOW_T_MIN:g}, 1]; peers, which take no t_min, "
-             "get origins moved by the epsilon",
+             (f"- shadow rays: from the primary hits toward a point light at the framing camera's eye raised by "
+              f"the scene's bounding radius along +y, over t in [{SHADOW_T_MIN:g}, 1]; peers, which take no t_min, "
+              "get origins moved by the epsilon"),
              f"- peers missing here: {', '.join(missing) if missing else 'none'}",
              "", f"![ratios to the best peer]({chart})", ""]
     for result in results:
