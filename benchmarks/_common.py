@@ -13,38 +13,78 @@ from rayaccel._timing import median_seconds  # noqa: F401  (re-exported for the 
 
 ROOT = Path(__file__).resolve().parents[1]
 
-
 COMPETITORS = {
     "embreex": "Embree 4 through embreex",
-    "open3d": "Open3D RaycastingScene (Embree inside); needs Debian's libusb-1.0-0 to import",
+    "open3d": "Open3D RaycastingScene (Embree inside)",
+    "mitsuba": "Mitsuba 3, variant llvm_ad_rgb (Embree inside, driven by Dr.Jit)",
 }
 
+LIBUSB_HINT = "apt-get install -y libusb-1.0-0"
+LLVM_HINT = "apt-get install -y llvm"
 
-def _importable(name: str) -> bool:
+
+def _check_mitsuba() -> None:
+    """Mitsuba imports without its JIT; the variant the benchmark uses needs libLLVM at run time."""
+    import mitsuba
+
+    mitsuba.set_variant("llvm_ad_rgb")
+
+
+def import_problem(name: str) -> tuple[str, str | None] | None:
+    """None if competitor ``name`` imports and works here, else ``(reason, command that fixes it or None)``."""
     try:
         importlib.import_module(name)
-        return True
-    except ImportError:
-        return False
+        if name == "mitsuba":
+            _check_mitsuba()
+    except ModuleNotFoundError as error:
+        return f"not installed ({error})", f"pip install -e '{ROOT}[bench]'"
+    except OSError as error:
+        if "libusb" in str(error):
+            return f"Debian's libusb-1.0-0 is missing ({error})", LIBUSB_HINT
+        return f"a shared library failed to load ({error})", None
+    except Exception as error:  # noqa: BLE001 - any failure is reported, never hidden
+        fix = LLVM_HINT if name == "mitsuba" else None  # Dr.Jit's LLVM backend loads libLLVM at run time
+        return f"{type(error).__name__}: {error}", fix
+    return None
 
 
-def ensure_competitors() -> set[str]:
-    """The competitor modules that import, after installing the ``bench`` extra if any is missing."""
-    if not all(_importable(name) for name in COMPETITORS):
-        print("installing the competitors: pip install -e '.[bench]'", flush=True)
+def ensure_competitors(console=None) -> set[str]:
+    """The competitors that work here, after installing the ``bench`` extra if one is not
+    installed. Each one that does not work is printed in bold red with the reason and, where
+    known, the command that fixes it."""
+    def say(text: str, style: str | None = None) -> None:
+        if console is None:
+            print(text, flush=True)
+        else:
+            console.print(text, style=style, markup=False, highlight=False)
+
+    problems = {name: import_problem(name) for name in COMPETITORS}
+    if any(p and p[0].startswith("not installed") for p in problems.values()):
+        say(f"installing the competitors: pip install -e '{ROOT}[bench]'")
         subprocess.run([sys.executable, "-m", "pip", "install", "-q", "-e", f"{ROOT}[bench]"], check=False)
         importlib.invalidate_caches()
-    available = {name for name in COMPETITORS if _importable(name)}
-    for name in sorted(set(COMPETITORS) - available):
-        print(f"{COMPETITORS[name]} is not available here; its rows are left out", flush=True)
-    return available
+        problems = {name: import_problem(name) for name in COMPETITORS}
+    for name, problem in problems.items():
+        if problem:
+            reason, fix = problem
+            message = f"COMPETITOR MISSING: {COMPETITORS[name]} cannot run here; its rows are left out. {reason}"
+            say(message, style="bold red")
+            if fix:
+                say(f"    to fix it, run:  {fix}")
+    return {name for name, problem in problems.items() if problem is None}
 
 
 def primary_rays(scene, side: int):
+    """Pinhole-camera rays through the pixel centres of a ``side`` x ``side`` image framing the scene."""
+    return scene_camera(scene).rays(side, side)
+
+
+def scene_camera(scene):
+    """The camera that frames the scene's box from the front, slightly above and to the right."""
     import rayaccel as ra
 
     b = scene.bounds()
-    return ra.Camera.framing(b.scene_lo, b.scene_hi).rays(side, side)
+    return ra.Camera.framing(b.scene_lo, b.scene_hi)
 
 
 def incoherent_rays(scene, n: int, seed: int = 0):
@@ -55,3 +95,19 @@ def incoherent_rays(scene, n: int, seed: int = 0):
     directions = rng.normal(size=(n, 3))
     directions /= np.linalg.norm(directions, axis=1, keepdims=True)
     return origins, directions
+
+
+def light_position(scene) -> np.ndarray:
+    """A point light above and in front of the scene: the framing camera's eye raised along +y
+    by the radius of the scene's bounding sphere."""
+    b = scene.bounds()
+    radius = 0.5 * float(np.linalg.norm(b.scene_hi - b.scene_lo))
+    return scene_camera(scene).eye + np.array([0.0, radius, 0.0])
+
+
+def shadow_rays(origins, directions, t_hit, light):
+    """Rays from the finite hits ``origins + t_hit * directions`` toward ``light``: origins at the
+    hit points and directions ``light - origin`` (not normalised, so that the light is at t = 1)."""
+    hit = np.isfinite(t_hit)
+    points = origins[hit] + t_hit[hit, None] * directions[hit]
+    return points, np.asarray(light, float)[None, :] - points

@@ -1,183 +1,608 @@
-"""rayaccel's structures against Embree (embreex) and Open3D, same rays, same run.
+"""rayaccel's structures against the ray tracers a Python user would reach for, same rays, same run.
 
-For each scene and method: build seconds and closest-hit Mrays/s on primary
-(pinhole camera) and incoherent (origins in the scene box, uniform directions)
-rays, any-hit Mrays/s on primary rays, and the ratio of each to Embree's on 2
-threads (embreex queries run on one thread; the 2-thread figure splits the rays
-over two Python threads, as embreex releases the GIL) and, for closest hit, to
-the best rayaccel BVH in the run. rayaccel sorts incoherent batches before
-tracing them (``rayaccel.ray_order``); the row "rays as given" repeats the
-first method with ``reorder=False``, to show what the sort adds. Every figure
-is the median of five rounds in which all structures and competitors take
-turns, so that all of them meet the same phases of a noisy machine. Brute force is timed on a subset of the rays.
-Figures vary by +-30% on a shared machine: read the ratios, not the absolutes.
+Subjects
+    rayaccel, one row per method (``--methods``), plus the first method with its rays
+    traced as given (``reorder=False``), to show what rayaccel's ray sort adds;
+    Embree 4 through embreex, on one thread, and with the rays split over as many
+    Python threads as the machine has cores (embreex releases the GIL);
+    Open3D's ``RaycastingScene`` (``cast_rays``, ``test_occlusions``), on all cores;
+    Mitsuba 3, variant ``llvm_ad_rgb`` (``ray_intersect_preliminary``, ``ray_test``),
+    on Dr.Jit's thread pool. Mitsuba is timed with ``coherent=False`` and with
+    ``coherent=True`` and each column keeps the faster of the two (the report says
+    which). Its timed calls evaluate the lazy Dr.Jit result and copy it out to NumPy.
 
-    python benchmarks/bench_structures.py [--scenes bunny dragon] [--methods grid bvh-binned] [--side 1024]
+Columns: closest hit and any hit on three ray sets:
+    primary     ``side`` x ``side`` pinhole-camera rays framing the scene;
+    incoherent  as many rays with origins uniform in the scene box and uniform directions;
+    shadow      one ray from every primary hit point toward a point light, direction
+                ``light - hit`` so that the light is at t = 1, searched over
+                [1e-4, 1] (``SHADOW_T_MIN``). The light is the framing camera's eye
+                raised along +y by the radius of the scene's bounding sphere, so above
+                and in front of the scene. The hit points come from the first
+                rayaccel method, in float64.
+
+Intervals: rayaccel takes ``t_min``/``t_max`` per ray. None of the peers takes a t_min
+(Mitsuba 3's rays have only ``maxt``; embreex fixes tnear at 0; Open3D's ``cast_rays``
+has neither), so every peer gets the same shadow segment as origin ``hit + 1e-4 *
+direction`` and t_max ``1 - 1e-4``: embreex's ``dists``, Mitsuba's ``maxt``, Open3D's
+``tfar`` for ``test_occlusions``; Open3D's ``cast_rays`` cannot stop at t_max, so its
+hits beyond it are dropped afterwards, inside the timed call.
+
+Fairness: rays are converted into each subject's own input format (float32 arrays,
+Open3D tensors, Dr.Jit arrays) before timing; every timed call returns NumPy arrays.
+Every figure is the median of ``ROUNDS`` rounds in which all subjects take turns at
+every query, so that all of them meet the same phases of a noisy machine: read the
+ratios (to the best peer of each column, and to Embree on all cores), not the
+absolute figures. Each subject's answers are compared with the first rayaccel
+method's (same primitive for closest hit, same verdict for any hit; the peers trace
+in float32).
+
+    python benchmarks/bench_structures.py [--scenes dragon forest-small-chair] [--methods bvh-binned kdtree]
+                                          [--side 1024] [--out benchmarks/results]
 """
 
 from __future__ import annotations
 
 import argparse
+import copy
+import datetime
+import importlib.metadata
+import os
+import platform
 import sys
 import time
 from concurrent.futures import ThreadPoolExecutor
-from functools import partial
+from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 from rich.console import Console
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
-sys.path.insert(0, str(__import__("pathlib").Path(__file__).parent))
-from _common import ensure_competitors, incoherent_rays, median_seconds, primary_rays  # noqa: E402
+sys.path.insert(0, str(Path(__file__).parent))
+from _common import (  # noqa: E402
+    ROOT,
+    ensure_competitors,
+    incoherent_rays,
+    light_position,
+    primary_rays,
+    shadow_rays,
+)
 
 import rayaccel as ra  # noqa: E402
 
-ROUNDS = 5  # timing rounds; each subject's figure is its median
+ROUNDS = 5  # timing rounds; each figure is the median
+BUILD_REPEATS = 3  # builds timed per subject; the build figure is their median
+SHADOW_T_MIN = 1e-4  # in units of light - hit: a relative epsilon
+CORES = os.cpu_count() or 1
+RAY_SETS = ("primary", "incoherent", "shadow")
+QUERIES = ("closest", "any")
+COLUMNS = tuple(f"{rays} {query}" for query in QUERIES for rays in RAY_SETS)
+DEFAULT_METHODS = ["bvh-binned", "bvh-sah", "bvh-lbvh", "kdtree", "grid-bvh", "octree", "hgrid", "grid"]
 
 
-class EmbreeScene:
-    """embreex with float32 rays, on one thread or split over several Python threads."""
+@dataclass(frozen=True)
+class RaySet:
+    """Rays ``origins + t * directions`` (float64), searched over ``[t_min, t_max]``."""
 
-    def __init__(self, mesh):
+    origins: np.ndarray
+    directions: np.ndarray
+    t_min: float = 0.0
+    t_max: float = np.inf
+
+    def __len__(self) -> int:
+        return len(self.origins)
+
+    def without_t_min(self) -> tuple[np.ndarray, np.ndarray, float]:
+        """``(origins, directions, t_max)`` of the same segments starting at t = 0, for an API
+        with no t_min: origins moved to ``t_min`` and t_max measured from there."""
+        return self.origins + self.t_min * self.directions, self.directions, self.t_max - self.t_min
+
+
+def timed_builds(make, repeats: int = BUILD_REPEATS):
+    """``(last object made, median seconds)`` of ``repeats`` calls of ``make()``."""
+    seconds = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        made = make()
+        seconds.append(time.perf_counter() - start)
+    return made, float(np.median(seconds))
+
+
+class Subject:
+    """One row: answers closest-hit and any-hit queries on a :class:`RaySet`.
+
+    ``prepare`` converts a ray set into the subject's own input (not timed);
+    ``closest`` returns the primitive hit by each ray (-1 for none) and ``any_hit`` a bool
+    per ray, both as NumPy arrays, so that a timed call has done all of its work.
+    Subjects sharing a ``group`` are variants of one peer: the table keeps the fastest
+    per column and names it.
+    """
+
+    label = "?"
+    short = "?"  # for narrow cells
+    is_peer = True
+    is_baseline = False  # the peer every row is also compared with: Embree on all cores
+    group: str | None = None
+    build_seconds = 0.0
+
+    def variant(self, label: str, short: str | None = None, **changes) -> Subject:
+        """A copy with other settings, sharing the built structure."""
+        other = copy.copy(self)
+        vars(other).update(changes, label=label, short=short or label)
+        return other
+
+    def prepare(self, rays: RaySet):
+        raise NotImplementedError
+
+    def closest(self, prepared) -> np.ndarray:
+        raise NotImplementedError
+
+    def any_hit(self, prepared) -> np.ndarray:
+        raise NotImplementedError
+
+
+class RayaccelSubject(Subject):
+    """A rayaccel structure; ``reorder=False`` traces the rays in the order given."""
+
+    is_peer = False
+
+    def __init__(self, scene, method: str, reorder: bool = True):
+        self.accel, self.build_seconds = timed_builds(lambda: ra.build(scene, method))
+        self.reorder = reorder
+        self.label = self.short = f"rayaccel {method}"
+
+    def prepare(self, rays: RaySet) -> RaySet:
+        return rays
+
+    def closest(self, rays: RaySet) -> np.ndarray:
+        return self.accel.intersect(rays.origins, rays.directions, rays.t_min, rays.t_max, reorder=self.reorder).prim
+
+    def any_hit(self, rays: RaySet) -> np.ndarray:
+        return self.accel.occluded(rays.origins, rays.directions, rays.t_min, rays.t_max, reorder=self.reorder)
+
+
+class EmbreePeer(Subject):
+    """Embree 4 through embreex (float32); with ``threads > 1`` the rays are split into that many
+    parts traced on Python threads, as ``run`` releases the GIL."""
+
+    def __init__(self, mesh, threads: int = 1):
+        self.scene, self.build_seconds = timed_builds(lambda: self._build(mesh))
+        self.threads, self.is_baseline = threads, threads == CORES
+        self.label, self.short = self._label(threads), f"Embree {threads}T"
+
+    @staticmethod
+    def _label(threads: int) -> str:
+        return f"Embree (embreex), {threads} thread{'s' * (threads > 1)}"
+
+    def with_threads(self, threads: int) -> EmbreePeer:
+        """The same BVH, queried on ``threads`` threads."""
+        return self.variant(self._label(threads), f"Embree {threads}T", threads=threads,
+                            is_baseline=threads == CORES)
+
+    @staticmethod
+    def _build(mesh):
         from embreex import rtcore_scene
         from embreex.mesh_construction import TriangleMesh
 
-        start = time.perf_counter()
-        self.scene = rtcore_scene.EmbreeScene()
-        TriangleMesh(self.scene, mesh.vertices.astype(np.float32), mesh.faces.astype(np.int32))
-        self.scene.run(np.zeros((1, 3), np.float32), np.ones((1, 3), np.float32))  # commit (builds the BVH)
-        self.build_seconds = time.perf_counter() - start
+        scene = rtcore_scene.EmbreeScene()
+        TriangleMesh(scene, mesh.vertices.astype(np.float32), mesh.faces.astype(np.int32))
+        scene.run(np.zeros((1, 3), np.float32), np.ones((1, 3), np.float32))  # commits: builds the BVH
+        return scene
 
-    def query(self, origins, directions, threads: int, kind: str = "INTERSECT"):
-        o = origins.astype(np.float32)
-        d = directions.astype(np.float32)
-        if threads == 1:
-            return self.scene.run(o, d, query=kind)
-        parts = np.array_split(np.arange(len(o)), threads)
-        with ThreadPoolExecutor(threads) as pool:
-            results = list(pool.map(lambda idx: self.scene.run(o[idx], d[idx], query=kind), parts))
-        return np.concatenate(results)
+    def prepare(self, rays: RaySet) -> list[tuple]:
+        origins, directions, t_max = rays.without_t_min()
+        dists = np.full(len(rays), t_max, np.float32) if np.isfinite(t_max) else None
+        parts = np.array_split(np.arange(len(rays)), self.threads)
+        return [(origins[p].astype(np.float32), directions[p].astype(np.float32),
+                 None if dists is None else dists[p]) for p in parts]
+
+    def _run(self, parts: list[tuple], query: str) -> np.ndarray:
+        def run(part):
+            origins, directions, dists = part
+            return self.scene.run(origins, directions, dists=dists, query=query)
+
+        if len(parts) == 1:
+            return run(parts[0])
+        with ThreadPoolExecutor(len(parts)) as pool:
+            return np.concatenate(list(pool.map(run, parts)))
+
+    def closest(self, parts) -> np.ndarray:
+        return self._run(parts, "INTERSECT")
+
+    def any_hit(self, parts) -> np.ndarray:
+        return self._run(parts, "OCCLUDED") == 0  # embreex: 0 where occluded, -1 elsewhere
 
 
-class Open3dScene:
-    """Open3D's RaycastingScene (Embree inside); its BVH is built on the first query."""
+class Open3dPeer(Subject):
+    """Open3D's RaycastingScene on all cores; its BVH is built on the first query, so the build
+    time includes one query of one ray."""
 
     def __init__(self, mesh):
-        import open3d as o3d
+        import open3d
 
-        self.o3d = o3d
-        start = time.perf_counter()
-        self.scene = o3d.t.geometry.RaycastingScene()
-        self.scene.add_triangles(o3d.core.Tensor(mesh.vertices.astype(np.float32)),
-                                 o3d.core.Tensor(mesh.faces.astype(np.uint32)))
-        self.scene.cast_rays(o3d.core.Tensor(np.array([[0, 0, 0, 1, 1, 1]], np.float32)))
-        self.build_seconds = time.perf_counter() - start
+        self.o3d = open3d
+        self.scene, self.build_seconds = timed_builds(lambda: self._build(mesh))
+        self.label = f"Open3D RaycastingScene, {CORES} threads"
+        self.short = "Open3D"
 
-    def query(self, origins, directions, threads: int, kind: str = "INTERSECT"):
-        rays = self.o3d.core.Tensor(np.hstack([origins, directions]).astype(np.float32))
-        if kind == "OCCLUDED":
-            return self.scene.test_occlusions(rays, nthreads=threads).numpy()
-        return self.scene.cast_rays(rays, nthreads=threads)["primitive_ids"].numpy()
+    def _build(self, mesh):
+        scene = self.o3d.t.geometry.RaycastingScene()
+        scene.add_triangles(self.o3d.core.Tensor(mesh.vertices.astype(np.float32)),
+                            self.o3d.core.Tensor(mesh.faces.astype(np.uint32)))
+        scene.cast_rays(self.o3d.core.Tensor(np.array([[0, 0, 0, 1, 1, 1]], np.float32)))
+        return scene
+
+    def prepare(self, rays: RaySet):
+        origins, directions, t_max = rays.without_t_min()
+        return self.o3d.core.Tensor(np.hstack([origins, directions]).astype(np.float32)), t_max
+
+    def closest(self, prepared) -> np.ndarray:
+        rays, t_max = prepared
+        answer = self.scene.cast_rays(rays, nthreads=CORES)
+        prim = answer["primitive_ids"].numpy().view(np.int32)  # INVALID_ID (2**32 - 1) reads as -1
+        if np.isfinite(t_max):
+            prim = np.where(answer["t_hit"].numpy() <= t_max, prim, -1)
+        return prim
+
+    def any_hit(self, prepared) -> np.ndarray:
+        rays, t_max = prepared
+        return self.scene.test_occlusions(rays, tfar=t_max, nthreads=CORES).numpy()
 
 
-def _queries(intersect, occluded, rays) -> dict:
-    """The timed calls of one subject: closest hit on each ray set, any hit on primary rays."""
-    calls = {label: (len(o), lambda o=o, d=d: intersect(o, d)) for label, (o, d) in rays.items()}
-    o, d = rays["primary"]
-    calls["any-hit"] = (len(o), lambda: occluded(o, d))
+class MitsubaPeer(Subject):
+    """Mitsuba 3 (variant llvm_ad_rgb, Embree inside) on a mesh made in memory; the build is the
+    mesh and scene creation, which builds the BVH. ``coherent`` is the hint passed to every query."""
+
+    def __init__(self, mesh, coherent: bool = False):
+        import drjit
+        import mitsuba
+
+        mitsuba.set_variant("llvm_ad_rgb")
+        self.mi, self.dr = mitsuba, drjit
+        self.scene, self.build_seconds = timed_builds(lambda: self._build(mesh))
+        self.coherent = coherent
+        self.group = f"Mitsuba 3 llvm_ad_rgb, {drjit.thread_count()} threads"
+        self.short = "Mitsuba 3"
+        self.label = self._label(coherent)
+
+    def _label(self, coherent: bool) -> str:
+        return f"{self.group}, coherent={coherent}"
+
+    def with_coherent(self, coherent: bool) -> MitsubaPeer:
+        """The same scene, queried with another ``coherent`` hint."""
+        return self.variant(self._label(coherent), self.short, coherent=coherent)
+
+    def _build(self, mesh):
+        mi = self.mi
+        shape = mi.Mesh("mesh", len(mesh.vertices), len(mesh.faces))
+        params = mi.traverse(shape)
+        params["vertex_positions"] = mi.Float(mesh.vertices.astype(np.float32).ravel())
+        params["faces"] = mi.UInt32(mesh.faces.astype(np.uint32).ravel())
+        params.update()
+        return mi.load_dict({"type": "scene", "mesh": shape})
+
+    def prepare(self, rays: RaySet):
+        mi, dr = self.mi, self.dr
+        origins, directions, t_max = rays.without_t_min()
+        columns = [mi.Float(np.ascontiguousarray(a[:, k], np.float32)) for a in (origins, directions) for k in range(3)]
+        ray = mi.Ray3f(mi.Point3f(*columns[:3]), mi.Vector3f(*columns[3:]))
+        if np.isfinite(t_max):
+            ray.maxt = dr.full(mi.Float, t_max, len(rays))
+        dr.eval(ray)
+        dr.sync_thread()
+        return ray
+
+    def closest(self, ray) -> np.ndarray:
+        mi, dr = self.mi, self.dr
+        hit = self.scene.ray_intersect_preliminary(ray, coherent=self.coherent)
+        prim = dr.select(hit.is_valid(), mi.Int32(hit.prim_index), -1)
+        dr.eval(prim)
+        dr.sync_thread()
+        return prim.numpy()
+
+    def any_hit(self, ray) -> np.ndarray:
+        occluded = self.scene.ray_test(ray, coherent=self.coherent)
+        self.dr.eval(occluded)
+        self.dr.sync_thread()
+        return occluded.numpy()
+
+
+@dataclass
+class Row:
+    """One subject's figures in one scene, per column: Mrays/s, and the number of rays whose answer
+    differs from the reference's."""
+
+    label: str
+    short: str
+    is_peer: bool
+    is_baseline: bool
+    build: float
+    rates: dict[str, float] = field(default_factory=dict)
+    differ: dict[str, int] = field(default_factory=dict)
+    note: str = ""
+
+
+@dataclass
+class SceneResult:
+    name: str
+    triangles: int
+    ray_counts: dict[str, int]
+    hit_share: dict[str, float]  # per column
+    rows: list[Row]
+
+    def best_peer(self, column: str) -> Row | None:
+        peers = [row for row in self.rows if row.is_peer]
+        return max(peers, key=lambda row: row.rates[column]) if peers else None
+
+    def embree_all_cores(self) -> Row | None:
+        return next((row for row in self.rows if row.is_baseline), None)
+
+
+def build_subjects(scene, methods: list[str], competitors: set[str], progress: Progress) -> list[Subject]:
+    """rayaccel's structures, the as-given row and every available peer, each built and timed."""
+    makers = [(f"rayaccel {m}", lambda m=m: [RayaccelSubject(scene, m)]) for m in methods]
+    if "embreex" in competitors:
+        makers.append(("Embree", lambda: [(e := EmbreePeer(scene)), *([e.with_threads(CORES)] * (CORES > 1))]))
+    if "open3d" in competitors:
+        makers.append(("Open3D", lambda: [Open3dPeer(scene)]))
+    if "mitsuba" in competitors:
+        makers.append(("Mitsuba 3", lambda: [(m := MitsubaPeer(scene)), m.with_coherent(True)]))
+    task = progress.add_task("building", total=len(makers))
+    subjects = []
+    for label, make in makers:
+        progress.update(task, description=f"building {label}")
+        subjects += make()
+        progress.advance(task)
+    first = subjects[0]
+    subjects.insert(len(methods), first.variant(f"{first.label}, rays as given", reorder=False))
+    progress.remove_task(task)
+    return subjects
+
+
+def ray_sets(scene, side: int, reference: RayaccelSubject) -> dict[str, RaySet]:
+    """The three ray sets; the shadow rays start at the reference's primary hits."""
+    primary = RaySet(*primary_rays(scene, side))
+    incoherent = RaySet(*incoherent_rays(scene, side * side))
+    t_hit = reference.accel.intersect(primary.origins, primary.directions).t
+    shadow = RaySet(*shadow_rays(primary.origins, primary.directions, t_hit, light_position(scene)),
+                    t_min=SHADOW_T_MIN, t_max=1.0)
+    return {"primary": primary, "incoherent": incoherent, "shadow": shadow}
+
+
+def _calls(subjects: list[Subject], rays: dict[str, RaySet]) -> list[tuple[int, str, object]]:
+    """``(subject index, column, call)`` for every query of every subject, inputs prepared."""
+    calls = []
+    for i, subject in enumerate(subjects):
+        for set_name in RAY_SETS:
+            prepared = subject.prepare(rays[set_name])
+            calls.append((i, f"{set_name} closest", lambda s=subject, p=prepared: s.closest(p)))
+            calls.append((i, f"{set_name} any", lambda s=subject, p=prepared: s.any_hit(p)))
     return calls
 
 
-def _interleaved_rates(subjects: list[dict], console: Console) -> None:
-    """Mrays/s of every subject's queries, the median of ``ROUNDS`` rounds in which every
-    subject runs every query once in turn, so that all of them see the same phases of a
-    noisy machine; written into each subject's row."""
-    for subject in subjects:
-        for _, call in subject["calls"].values():
-            call()
-    seconds = {(i, label): [] for i, subject in enumerate(subjects) for label in subject["calls"]}
-    for round_ in range(ROUNDS):
-        console.log(f"round {round_ + 1} of {ROUNDS}")
-        for i, subject in enumerate(subjects):
-            for label, (_, call) in subject["calls"].items():
-                start = time.perf_counter()
-                call()
-                seconds[i, label].append(time.perf_counter() - start)
-    for i, subject in enumerate(subjects):
-        for label, (n_rays, _) in subject.pop("calls").items():
-            subject[label] = n_rays / float(np.median(seconds[i, label])) / 1e6
+def measure(subjects: list[Subject], rays: dict[str, RaySet], scene_name: str,
+            progress: Progress) -> tuple[list[Row], dict[str, float]]:
+    """Every subject's Mrays/s per column, the median of ``ROUNDS`` interleaved rounds after one
+    warm-up round whose answers are compared with the first subject's; and the share of rays
+    that hit something per column, by the first subject's answers."""
+    calls = _calls(subjects, rays)
+    rows = [Row(s.label, s.short, s.is_peer, s.is_baseline, s.build_seconds) for s in subjects]
+    seconds = {(i, column): [] for i, column, _ in calls}
+    reference = {}
+    task = progress.add_task(scene_name, total=len(calls) * (ROUNDS + 1))
+    for round_ in range(ROUNDS + 1):
+        phase = "warm-up" if round_ == 0 else f"round {round_}/{ROUNDS}"
+        for i, column, call in calls:
+            progress.update(task, description=f"{scene_name} {phase}: {subjects[i].label}, {column}")
+            start = time.perf_counter()
+            answer = call()
+            elapsed = time.perf_counter() - start
+            if round_ == 0:
+                expected = reference.setdefault(column, answer)
+                rows[i].differ[column] = int(np.count_nonzero(np.asarray(answer) != expected))
+            else:
+                seconds[i, column].append(elapsed)
+            progress.advance(task)
+    progress.remove_task(task)
+    for (i, column), times in seconds.items():
+        rows[i].rates[column] = len(rays[column.split()[0]]) / float(np.median(times)) / 1e6
+    hit_share = {column: float(np.mean(np.asarray(answer) >= 0 if "closest" in column else answer))
+                 for column, answer in reference.items()}
+    return _merge_variants(rows, subjects), hit_share
 
 
-def bench_scene(name: str, methods: list[str], side: int, competitors: set[str], console: Console) -> list[dict]:
+def _merge_variants(rows: list[Row], subjects: list[Subject]) -> list[Row]:
+    """One row per group of variants (Mitsuba's coherent hint): the fastest variant per column,
+    with a note naming it."""
+    merged, groups = [], {}
+    for row, subject in zip(rows, subjects):
+        if subject.group is None:
+            merged.append(row)
+        else:
+            groups.setdefault(subject.group, []).append(row)
+            if len(groups[subject.group]) == 1:
+                merged.append(Row(subject.group, subject.short, row.is_peer, row.is_baseline, row.build))
+    for group, variants in groups.items():
+        row = next(r for r in merged if r.label == group)
+        winners = []
+        for column in COLUMNS:
+            best = max(variants, key=lambda r: r.rates[column])
+            row.rates[column], row.differ[column] = best.rates[column], best.differ[column]
+            winners.append(f"{column}: {best.label.removeprefix(group).strip(', ')}")
+        others = "; ".join(f"{v.label.removeprefix(group).strip(', ')} " + ", ".join(
+            f"{v.rates[c]:.3g}" for c in COLUMNS) for v in variants)
+        row.note = f"faster variant per column: {'; '.join(winners)}. Mrays/s of each variant: {others}"
+    return merged
+
+
+def bench_scene(name: str, methods: list[str], side: int, competitors: set[str], progress: Progress) -> SceneResult:
+    task = progress.add_task(f"loading {name}", total=None)
     scene = ra.load_scene(name)
-    rays = {"primary": primary_rays(scene, side), "incoherent": incoherent_rays(scene, side * side)}
-    subjects = []
-    accels = {}
-    for method in methods:
-        accel = accels[method] = ra.build(scene, method)
-        subjects.append({"scene": name, "method": f"rayaccel {method}",
-                         "build": median_seconds(lambda: ra.build(scene, method), repeats=3),
-                         "calls": _queries(accel.intersect, accel.occluded, rays)})
-    first = accels[methods[0]]
-    subjects.append({"scene": name, "method": f"rayaccel {methods[0]}, rays as given", "build": subjects[0]["build"],
-                     "calls": _queries(partial(first.intersect, reorder=False), partial(first.occluded, reorder=False),
-                                       rays)})
-    reference_hits = accel.intersect(*rays["primary"]).prim
-    if "embreex" in competitors:
-        embree = EmbreeScene(scene)
-        agreement = np.mean(embree.query(*rays["primary"], 1) == reference_hits)
-        console.print(f"{name}: Embree and rayaccel report the same primitive for {agreement:.2%} of primary rays "
-                      "(float32 vs float64)")
-        build = median_seconds(lambda: EmbreeScene(scene), repeats=3)
-        for threads in (1, 2):
-            subjects.append({"scene": name, "method": f"Embree (embreex), {threads} thread{'s' * (threads > 1)}",
-                             "build": build, "calls": _queries(partial(embree.query, threads=threads),
-                                                               partial(embree.query, threads=threads, kind="OCCLUDED"),
-                                                               rays)})
-    if "open3d" in competitors:
-        open3d = Open3dScene(scene)
-        subjects.append({"scene": name, "method": "Open3D RaycastingScene, 2 threads",
-                         "build": median_seconds(lambda: Open3dScene(scene), repeats=3),
-                         "calls": _queries(partial(open3d.query, threads=2),
-                                           partial(open3d.query, threads=2, kind="OCCLUDED"), rays)})
-    _interleaved_rates(subjects, console)
+    progress.remove_task(task)
+    subjects = build_subjects(scene, methods, competitors, progress)
+    rays = ray_sets(scene, side, subjects[0])
+    rows, hit_share = measure(subjects, rays, name, progress)
+    return SceneResult(name, len(scene.faces), {k: len(v) for k, v in rays.items()}, hit_share, rows)
 
-    brute = ra.build(scene, "none")
-    subset = max(64, int(2e9 / len(scene) / 50))
-    row = {"scene": name, "method": "rayaccel none (subset)", "build": brute.build_seconds}
-    for label, (o, d) in rays.items():
-        row[label] = subset / median_seconds(lambda: brute.intersect(o[:subset], d[:subset]), repeats=1) / 1e6
-    row["any-hit"] = subset / median_seconds(lambda: brute.occluded(o[:subset], d[:subset]), repeats=1) / 1e6
-    return subjects + [row]
+
+def _ratio_rows(result: SceneResult, baseline) -> list[list[str]]:
+    """Each row's Mrays/s over ``baseline(column)``'s, per column."""
+    rows = []
+    for row in result.rows:
+        cells = []
+        for column in COLUMNS:
+            base = baseline(column)
+            cells.append(f"{row.rates[column] / base.rates[column]:.3g}" if base else "-")
+        rows.append([row.label, *cells])
+    return rows
+
+
+def _agreement(differ: int, n: int) -> str:
+    """The share of ``n`` answers that agree, and how many differ."""
+    return f"{1 - differ / n:.3%} ({differ:,} differ)" if differ else "100% (all)"
+
+
+def scene_tables(result: SceneResult) -> list[tuple[str, list[str], list[list[str]]]]:
+    """``(title, header, rows)`` of the scene's tables: throughput, the two ratios, agreement."""
+    header = ["subject", *COLUMNS]
+    counts = ", ".join(f"{n:,} {k}" for k, n in result.ray_counts.items())
+    embree = result.embree_all_cores()
+    tables = [(f"{result.name} ({result.triangles:,} triangles; {counts} rays): build s and Mrays/s",
+               ["subject", "build s", *COLUMNS],
+               [[r.label, f"{r.build:.3g}", *(f"{r.rates[c]:.3g}" for c in COLUMNS)] for r in result.rows])]
+    if result.best_peer(COLUMNS[0]):
+        best_names = ["(best peer)", *(result.best_peer(c).short for c in COLUMNS)]
+        tables.append((f"{result.name}: Mrays/s relative to the best peer of each column", header,
+                       [best_names, *_ratio_rows(result, result.best_peer)]))
+    if embree:
+        tables.append((f"{result.name}: Mrays/s relative to {embree.label}", header,
+                       _ratio_rows(result, lambda column: embree)))
+    agreement = (f"{result.name}: answers agreeing with {result.rows[0].label}'s (same primitive for closest hit, "
+                 "same verdict for any hit)")
+    hits = ["(rays that hit)", *(f"{result.hit_share[c]:.1%}" for c in COLUMNS)]
+    tables.append((agreement, header, [hits] +
+                   [[r.label, *(_agreement(r.differ[c], result.ray_counts[c.split()[0]]) for c in COLUMNS)]
+                    for r in result.rows]))
+    return tables
+
+
+def rich_table(title: str, header: list[str], rows: list[list[str]]) -> Table:
+    table = Table(title=title)
+    for k, column in enumerate(header):
+        table.add_column(column, justify="left" if k == 0 else "right")
+    for row in rows:
+        table.add_row(*row)
+    return table
+
+
+def markdown_table(title: str, header: list[str], rows: list[list[str]]) -> str:
+    lines = [f"**{title}**", "", "| " + " | ".join(header) + " |",
+             "|" + "|".join([":---"] + ["---:"] * (len(header) - 1)) + "|"]
+    lines += ["| " + " | ".join(row) + " |" for row in rows]
+    return "\n".join(lines) + "\n"
+
+
+def environment() -> list[str]:
+    """The machine, the library versions and the date, as markdown list items."""
+    try:
+        with open("/proc/cpuinfo") as info:
+            cpu = next(line.split(":", 1)[1].strip() for line in info if line.startswith("model name"))
+    except (OSError, StopIteration):
+        cpu = platform.processor() or "unknown CPU"
+    versions = []
+    for package in ("rayaccel", "numpy", "numba", "embreex", "open3d", "mitsuba", "drjit", "matplotlib"):
+        try:
+            versions.append(f"{package} {importlib.metadata.version(package)}")
+        except importlib.metadata.PackageNotFoundError:
+            versions.append(f"{package} not installed")
+    import numba
+
+    return [f"date: {datetime.datetime.now().astimezone().isoformat(timespec='minutes')}",
+            f"machine: {cpu}, {CORES} cores ({platform.platform()}); Numba threads: {numba.config.NUMBA_NUM_THREADS}",
+            f"Python {platform.python_version()}; " + ", ".join(versions)]
+
+
+def write_markdown(results: list[SceneResult], competitors: set[str], path: Path, chart: str) -> None:
+    from _common import COMPETITORS
+
+    missing = [COMPETITORS[name] for name in COMPETITORS if name not in competitors]
+    lines = ["# rayaccel against its peers", "", *(f"- {item}" for item in environment()),
+             f"- {ROUNDS} interleaved rounds, medians; build: median of {BUILD_REPEATS} builds",
+             (f"- shadow rays: from the primary hits toward a point light at the framing camera's eye raised by "
+              f"the scene's bounding radius along +y, over t in [{SHADOW_T_MIN:g}, 1]; peers, which take no t_min, "
+              "get origins moved by the epsilon"),
+             f"- peers missing here: {', '.join(missing) if missing else 'none'}",
+             "", f"![ratios to the best peer]({chart})", ""]
+    for result in results:
+        lines += [f"## {result.name}", ""]
+        lines += [markdown_table(*table) for table in scene_tables(result)]
+        lines += [f"- {row.label}: {row.note}" for row in result.rows if row.note] + [""]
+    path.write_text("\n".join(lines))
+
+
+def plot(results: list[SceneResult], path: Path) -> None:
+    """Grouped bars of each subject's Mrays/s over the best peer's, per column, one panel per scene."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.ticker import FuncFormatter, LogLocator
+
+    fig, axes = plt.subplots(len(results), 1, figsize=(16, 5 * len(results)), squeeze=False)
+    for ax, result in zip(axes[:, 0], results):
+        x = np.arange(len(COLUMNS))
+        width = 0.85 / len(result.rows)
+        ours = [r for r in result.rows if not r.is_peer]
+        for k, row in enumerate(result.rows):
+            ratios = [row.rates[c] / result.best_peer(c).rates[c] for c in COLUMNS]
+            color = plt.cm.viridis(k / max(len(ours) - 1, 1)) if not row.is_peer else plt.cm.Reds(
+                0.4 + 0.5 * (k - len(ours)) / max(len(result.rows) - len(ours) - 1, 1))
+            ax.bar(x - 0.425 + (k + 0.5) * width, ratios, width, label=row.label, color=color,
+                   hatch="//" if row.is_peer else None, edgecolor="white" if row.is_peer else None, linewidth=0)
+        ax.axhline(1.0, color="black", linewidth=1)
+        ax.set_yscale("log")
+        ax.yaxis.set_minor_locator(LogLocator(subs=(2.0, 5.0)))
+        for formatter in (ax.yaxis.set_major_formatter, ax.yaxis.set_minor_formatter):
+            formatter(FuncFormatter(lambda value, _: f"{value:g}"))
+        ax.set_xticks(x, COLUMNS)
+        ax.set_ylabel("Mrays/s / best peer's")
+        ax.set_title(f"{result.name} ({result.triangles:,} triangles)")
+        ax.grid(axis="y", which="both", alpha=0.3)
+        ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8)
+    fig.suptitle("rayaccel and its peers: throughput relative to the best peer of each column (1 = best peer)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110, bbox_inches="tight")
+    plt.close(fig)
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--scenes", nargs="+", default=["bunny", "dragon"])
-    parser.add_argument("--methods", nargs="+",
-                        default=["grid", "hgrid", "grid-bvh", "kdtree", "octree", "bvh-binned", "bvh-lbvh"])
+    parser.add_argument("--scenes", nargs="+", default=["dragon", "forest-small-chair"])
+    parser.add_argument("--methods", nargs="+", default=DEFAULT_METHODS)
     parser.add_argument("--side", type=int, default=1024, help="primary rays are side x side; as many incoherent")
+    parser.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results",
+                        help="folder for bench_structures.md and bench_structures.png")
     args = parser.parse_args()
-    console = Console(width=200)
-    competitors = ensure_competitors()
-    rows = []
-    for name in args.scenes:
-        with console.status(f"benchmarking {name}"):
-            rows += bench_scene(name, args.methods, args.side, competitors, console)
-    table = Table(title=f"closest hit, Mrays/s ({args.side}x{args.side} primary, as many incoherent); "
-                        "ratios to Embree on 2 threads and to the best rayaccel BVH in this run")
-    for column in ("scene", "method", "build s", "primary", "incoherent", "any-hit primary", "/Embree primary",
-                   "/Embree incoherent", "/Embree any-hit", "/best BVH primary", "/best BVH incoherent"):
-        table.add_column(column, justify="left" if column in ("scene", "method") else "right")
-    for row in rows:
-        same_scene = [r for r in rows if r["scene"] == row["scene"]]
-        embree = next((r for r in same_scene if r["method"] == "Embree (embreex), 2 threads"), None)
-        bvhs = [r for r in same_scene if r["method"].startswith("rayaccel bvh-") and "as given" not in r["method"]]
-        to_embree = [f"{row[k] / embree[k]:.3f}" if embree else "-" for k in ("primary", "incoherent", "any-hit")]
-        to_bvh = [f"{row[k] / max(r[k] for r in bvhs):.3f}" if bvhs else "-" for k in ("primary", "incoherent")]
-        table.add_row(row["scene"], row["method"], f"{row['build']:.3f}", f"{row['primary']:.3g}",
-                      f"{row['incoherent']:.3g}", f"{row['any-hit']:.3g}", *to_embree, *to_bvh)
-    console.print(table)
+    console = Console(width=220)
+    competitors = ensure_competitors(console)
+    results = []
+    columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn())
+    with Progress(*columns, console=console) as progress:
+        for name in args.scenes:
+            results.append(bench_scene(name, args.methods, args.side, competitors, progress))
+            for table in scene_tables(results[-1]):
+                progress.console.print(rich_table(*table))
+            for row in results[-1].rows:
+                if row.note:
+                    progress.console.print(f"{row.label}: {row.note}")
+    args.out.mkdir(parents=True, exist_ok=True)
+    chart = args.out / "bench_structures.png"
+    if competitors:
+        plot(results, chart)
+    write_markdown(results, competitors, args.out / "bench_structures.md", chart.name)
+    console.print(f"wrote {args.out / 'bench_structures.md'}" + (f" and {chart}" if competitors else ""))
 
 
 if __name__ == "__main__":
