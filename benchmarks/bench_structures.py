@@ -44,14 +44,11 @@ in float32).
 from __future__ import annotations
 
 import argparse
-import copy
 import datetime
 import importlib.metadata
-import os
 import platform
 import sys
 import time
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -61,6 +58,8 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from rich.table import Table
 
 sys.path.insert(0, str(Path(__file__).parent))
+import rayaccel as ra  # noqa: E402
+
 from _common import (  # noqa: E402
     ROOT,
     ensure_competitors,
@@ -69,244 +68,23 @@ from _common import (  # noqa: E402
     primary_rays,
     shadow_rays,
 )
-
-import rayaccel as ra  # noqa: E402
+from peers import (  # noqa: E402
+    BUILD_REPEATS,
+    CORES,
+    EmbreePeer,
+    MitsubaPeer,
+    Open3dPeer,
+    RayaccelSubject,
+    RaySet,
+    Subject,
+)
 
 ROUNDS = 5  # timing rounds; each figure is the median
-BUILD_REPEATS = 3  # builds timed per subject; the build figure is their median
 SHADOW_T_MIN = 1e-4  # in units of light - hit: a relative epsilon
-CORES = os.cpu_count() or 1
 RAY_SETS = ("primary", "incoherent", "shadow")
 QUERIES = ("closest", "any")
 COLUMNS = tuple(f"{rays} {query}" for query in QUERIES for rays in RAY_SETS)
 DEFAULT_METHODS = ["bvh-binned", "bvh-sah", "bvh-lbvh", "kdtree", "grid-bvh", "octree", "hgrid", "grid"]
-
-
-@dataclass(frozen=True)
-class RaySet:
-    """Rays ``origins + t * directions`` (float64), searched over ``[t_min, t_max]``."""
-
-    origins: np.ndarray
-    directions: np.ndarray
-    t_min: float = 0.0
-    t_max: float = np.inf
-
-    def __len__(self) -> int:
-        return len(self.origins)
-
-    def without_t_min(self) -> tuple[np.ndarray, np.ndarray, float]:
-        """``(origins, directions, t_max)`` of the same segments starting at t = 0, for an API
-        with no t_min: origins moved to ``t_min`` and t_max measured from there."""
-        return self.origins + self.t_min * self.directions, self.directions, self.t_max - self.t_min
-
-
-def timed_builds(make, repeats: int = BUILD_REPEATS):
-    """``(last object made, median seconds)`` of ``repeats`` calls of ``make()``."""
-    seconds = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        made = make()
-        seconds.append(time.perf_counter() - start)
-    return made, float(np.median(seconds))
-
-
-class Subject:
-    """One row: answers closest-hit and any-hit queries on a :class:`RaySet`.
-
-    ``prepare`` converts a ray set into the subject's own input (not timed);
-    ``closest`` returns the primitive hit by each ray (-1 for none) and ``any_hit`` a bool
-    per ray, both as NumPy arrays, so that a timed call has done all of its work.
-    Subjects sharing a ``group`` are variants of one peer: the table keeps the fastest
-    per column and names it.
-    """
-
-    label = "?"
-    short = "?"  # for narrow cells
-    is_peer = True
-    is_baseline = False  # the peer every row is also compared with: Embree on all cores
-    group: str | None = None
-    build_seconds = 0.0
-
-    def variant(self, label: str, short: str | None = None, **changes) -> Subject:
-        """A copy with other settings, sharing the built structure."""
-        other = copy.copy(self)
-        vars(other).update(changes, label=label, short=short or label)
-        return other
-
-    def prepare(self, rays: RaySet):
-        raise NotImplementedError
-
-    def closest(self, prepared) -> np.ndarray:
-        raise NotImplementedError
-
-    def any_hit(self, prepared) -> np.ndarray:
-        raise NotImplementedError
-
-
-class RayaccelSubject(Subject):
-    """A rayaccel structure; ``reorder=False`` traces the rays in the order given."""
-
-    is_peer = False
-
-    def __init__(self, scene, method: str, reorder: bool = True):
-        self.accel, self.build_seconds = timed_builds(lambda: ra.build(scene, method))
-        self.reorder = reorder
-        self.label = self.short = f"rayaccel {method}"
-
-    def prepare(self, rays: RaySet) -> RaySet:
-        return rays
-
-    def closest(self, rays: RaySet) -> np.ndarray:
-        return self.accel.intersect(rays.origins, rays.directions, rays.t_min, rays.t_max, reorder=self.reorder).prim
-
-    def any_hit(self, rays: RaySet) -> np.ndarray:
-        return self.accel.occluded(rays.origins, rays.directions, rays.t_min, rays.t_max, reorder=self.reorder)
-
-
-class EmbreePeer(Subject):
-    """Embree 4 through embreex (float32); with ``threads > 1`` the rays are split into that many
-    parts traced on Python threads, as ``run`` releases the GIL."""
-
-    def __init__(self, mesh, threads: int = 1):
-        self.scene, self.build_seconds = timed_builds(lambda: self._build(mesh))
-        self.threads, self.is_baseline = threads, threads == CORES
-        self.label, self.short = self._label(threads), f"Embree {threads}T"
-
-    @staticmethod
-    def _label(threads: int) -> str:
-        return f"Embree (embreex), {threads} thread{'s' * (threads > 1)}"
-
-    def with_threads(self, threads: int) -> EmbreePeer:
-        """The same BVH, queried on ``threads`` threads."""
-        return self.variant(self._label(threads), f"Embree {threads}T", threads=threads,
-                            is_baseline=threads == CORES)
-
-    @staticmethod
-    def _build(mesh):
-        from embreex import rtcore_scene
-        from embreex.mesh_construction import TriangleMesh
-
-        scene = rtcore_scene.EmbreeScene()
-        TriangleMesh(scene, mesh.vertices.astype(np.float32), mesh.faces.astype(np.int32))
-        scene.run(np.zeros((1, 3), np.float32), np.ones((1, 3), np.float32))  # commits: builds the BVH
-        return scene
-
-    def prepare(self, rays: RaySet) -> list[tuple]:
-        origins, directions, t_max = rays.without_t_min()
-        dists = np.full(len(rays), t_max, np.float32) if np.isfinite(t_max) else None
-        parts = np.array_split(np.arange(len(rays)), self.threads)
-        return [(origins[p].astype(np.float32), directions[p].astype(np.float32),
-                 None if dists is None else dists[p]) for p in parts]
-
-    def _run(self, parts: list[tuple], query: str) -> np.ndarray:
-        def run(part):
-            origins, directions, dists = part
-            return self.scene.run(origins, directions, dists=dists, query=query)
-
-        if len(parts) == 1:
-            return run(parts[0])
-        with ThreadPoolExecutor(len(parts)) as pool:
-            return np.concatenate(list(pool.map(run, parts)))
-
-    def closest(self, parts) -> np.ndarray:
-        return self._run(parts, "INTERSECT")
-
-    def any_hit(self, parts) -> np.ndarray:
-        return self._run(parts, "OCCLUDED") == 0  # embreex: 0 where occluded, -1 elsewhere
-
-
-class Open3dPeer(Subject):
-    """Open3D's RaycastingScene on all cores; its BVH is built on the first query, so the build
-    time includes one query of one ray."""
-
-    def __init__(self, mesh):
-        import open3d
-
-        self.o3d = open3d
-        self.scene, self.build_seconds = timed_builds(lambda: self._build(mesh))
-        self.label = f"Open3D RaycastingScene, {CORES} threads"
-        self.short = "Open3D"
-
-    def _build(self, mesh):
-        scene = self.o3d.t.geometry.RaycastingScene()
-        scene.add_triangles(self.o3d.core.Tensor(mesh.vertices.astype(np.float32)),
-                            self.o3d.core.Tensor(mesh.faces.astype(np.uint32)))
-        scene.cast_rays(self.o3d.core.Tensor(np.array([[0, 0, 0, 1, 1, 1]], np.float32)))
-        return scene
-
-    def prepare(self, rays: RaySet):
-        origins, directions, t_max = rays.without_t_min()
-        return self.o3d.core.Tensor(np.hstack([origins, directions]).astype(np.float32)), t_max
-
-    def closest(self, prepared) -> np.ndarray:
-        rays, t_max = prepared
-        answer = self.scene.cast_rays(rays, nthreads=CORES)
-        prim = answer["primitive_ids"].numpy().view(np.int32)  # INVALID_ID (2**32 - 1) reads as -1
-        if np.isfinite(t_max):
-            prim = np.where(answer["t_hit"].numpy() <= t_max, prim, -1)
-        return prim
-
-    def any_hit(self, prepared) -> np.ndarray:
-        rays, t_max = prepared
-        return self.scene.test_occlusions(rays, tfar=t_max, nthreads=CORES).numpy()
-
-
-class MitsubaPeer(Subject):
-    """Mitsuba 3 (variant llvm_ad_rgb, Embree inside) on a mesh made in memory; the build is the
-    mesh and scene creation, which builds the BVH. ``coherent`` is the hint passed to every query."""
-
-    def __init__(self, mesh, coherent: bool = False):
-        import drjit
-        import mitsuba
-
-        mitsuba.set_variant("llvm_ad_rgb")
-        self.mi, self.dr = mitsuba, drjit
-        self.scene, self.build_seconds = timed_builds(lambda: self._build(mesh))
-        self.coherent = coherent
-        self.group = f"Mitsuba 3 llvm_ad_rgb, {drjit.thread_count()} threads"
-        self.short = "Mitsuba 3"
-        self.label = self._label(coherent)
-
-    def _label(self, coherent: bool) -> str:
-        return f"{self.group}, coherent={coherent}"
-
-    def with_coherent(self, coherent: bool) -> MitsubaPeer:
-        """The same scene, queried with another ``coherent`` hint."""
-        return self.variant(self._label(coherent), self.short, coherent=coherent)
-
-    def _build(self, mesh):
-        mi = self.mi
-        shape = mi.Mesh("mesh", len(mesh.vertices), len(mesh.faces))
-        params = mi.traverse(shape)
-        params["vertex_positions"] = mi.Float(mesh.vertices.astype(np.float32).ravel())
-        params["faces"] = mi.UInt32(mesh.faces.astype(np.uint32).ravel())
-        params.update()
-        return mi.load_dict({"type": "scene", "mesh": shape})
-
-    def prepare(self, rays: RaySet):
-        mi, dr = self.mi, self.dr
-        origins, directions, t_max = rays.without_t_min()
-        columns = [mi.Float(np.ascontiguousarray(a[:, k], np.float32)) for a in (origins, directions) for k in range(3)]
-        ray = mi.Ray3f(mi.Point3f(*columns[:3]), mi.Vector3f(*columns[3:]))
-        if np.isfinite(t_max):
-            ray.maxt = dr.full(mi.Float, t_max, len(rays))
-        dr.eval(ray)
-        dr.sync_thread()
-        return ray
-
-    def closest(self, ray) -> np.ndarray:
-        mi, dr = self.mi, self.dr
-        hit = self.scene.ray_intersect_preliminary(ray, coherent=self.coherent)
-        prim = dr.select(hit.is_valid(), mi.Int32(hit.prim_index), -1)
-        dr.eval(prim)
-        dr.sync_thread()
-        return prim.numpy()
-
-    def any_hit(self, ray) -> np.ndarray:
-        occluded = self.scene.ray_test(ray, coherent=self.coherent)
-        self.dr.eval(occluded)
-        self.dr.sync_thread()
-        return occluded.numpy()
 
 
 @dataclass
