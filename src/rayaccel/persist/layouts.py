@@ -221,7 +221,7 @@ def _save_kdtree(accel):
 
 def _load_kdtree(accel, meta, arrays):
     lo, hi = _box3(arrays, "kd")
-    split = c.finite("kd.node_split", c.array(arrays, "kd.node_split", np.float64, (None,)))
+    split = c.array(arrays, "kd.node_split", np.float64, (None,))
     n = len(split)
     c.require(n >= 1, "the kd-tree has no node")
     link = c.array(arrays, "kd.node_link", np.int32, (n, 2))
@@ -230,6 +230,7 @@ def _load_kdtree(accel, meta, arrays):
     axis, count = link[:, 1] & 3, link[:, 1] >> 2
     inner = axis != LEAF
     c.require(not count[inner].any(), "kd-tree inner nodes must hold no references")
+    c.finite("kd.node_split", split[inner])  # a leaf's entry is unused
     below = link[inner, 0].astype(np.int64)
     parents = np.flatnonzero(inner)
     c.single_parents("kd-tree", np.concatenate((parents, parents)), np.concatenate((below, below + 1)), n)
