@@ -188,3 +188,20 @@ def test_not_a_file_and_not_an_accelerator(tmp_path):
     (tmp_path / "mesh.obj").write_text("v 0 0 0\n")
     with pytest.raises(CorruptFileError):
         ra.load_accelerator(tmp_path / "mesh.obj")
+
+
+def test_command_line_builds_saves_and_reads(tmp_path, capsys):
+    from rayaccel.cli import main
+
+    saved = tmp_path / "teapot.npz"
+    assert main(["--quiet", "build", "teapot", "--method", "bvh-binned", "--out", str(saved)]) == 0
+    assert ra.load_accelerator(saved).method == "bvh-binned"
+    assert main(["--quiet", "render", str(saved), "--size", "24", "--out", str(tmp_path / "t.png")]) == 0
+    assert (tmp_path / "t.png").exists()
+    assert main(["--quiet", "stats", str(saved)]) == 0
+    assert "sah_cost" in capsys.readouterr().out
+    damaged = bytearray(saved.read_bytes())
+    damaged[len(damaged) // 2] ^= 4
+    saved.write_bytes(bytes(damaged))
+    assert main(["--quiet", "stats", str(saved)]) == 2
+    assert "checksum" in capsys.readouterr().err

@@ -171,3 +171,23 @@ def test_bad_scenes_and_transforms(small_dragon):
     with pytest.raises(IndexError):
         scene.set_transform(3, np.eye(4))
     assert scene.add(small_dragon, transform=np.eye(4)[:3]) == 0
+
+
+def test_forest_instanced_renders_like_its_flattened_copy(tmp_path):
+    from rayaccel.cli import main
+    from rayaccel.procedural import forest_instanced
+    from rayaccel.render import default_camera, default_lights, render
+
+    scene = forest_instanced(n_trees=300, size=60.0)
+    assert scene.n_instances == 302 and len(scene.objects) == 3
+    flat_accel = ra.build(scene.flatten(), "bvh-binned")
+    camera = default_camera(flat_accel)
+    lights = default_lights(flat_accel, camera)
+    instanced = render(ra.build(scene, "bvh-binned"), camera, 48, 48, lights)
+    flat = render(flat_accel, camera, 48, 48, lights)
+    assert instanced.image.std() > 0.02
+    differs = np.abs(instanced.image - flat.image).max(axis=2) > 1e-6
+    assert differs.mean() < 0.005
+    assert main(["--quiet", "stats", "forest-instanced", "--method", "bvh-lbvh"]) == 0
+    assert main(["--quiet", "render", "forest-instanced", "--method", "grid", "--size", "16",
+                 "--out", str(tmp_path / "f.png")]) == 0

@@ -35,6 +35,10 @@ __all__ = ["InstancedScene"]
 # rounding of the transforms never culls an instance a ray hits in its own frame.
 _BOX_PAD = 1e-9
 _TOP_TRAVERSAL_COST = 1.0
+# Once this few pairs are left after the first wave, they go in one last wave: a query
+# costs a fixed few milliseconds (more when other processes hold the cores), more than
+# the tests the later waves would save on so few pairs.
+_FOLD_PAIRS = 16384
 
 
 class InstancedScene(Accelerator):
@@ -118,10 +122,12 @@ class InstancedScene(Accelerator):
         ray_of_pair = np.repeat(np.arange(n), np.diff(offsets))
         rank = np.arange(len(instance)) - offsets[ray_of_pair]
         wave_first = 0
-        while wave_first <= (rank.max() if len(rank) else -1):
+        last = rank.max() if len(rank) else -1
+        while wave_first <= last:
             wave_end = max(1, 2 * wave_first)
-            in_wave = (rank >= wave_first) & (rank < wave_end)
-            pairs = np.flatnonzero(in_wave)
+            if wave_first and np.count_nonzero(rank >= wave_first) <= _FOLD_PAIRS:
+                wave_end = last + 1
+            pairs = np.flatnonzero((rank >= wave_first) & (rank < wave_end))
             pairs = pairs[entry[pairs] <= limit[ray_of_pair[pairs]]]
             if any_hit:
                 pairs = pairs[best_prim[ray_of_pair[pairs]] < 0]

@@ -22,10 +22,32 @@ from __future__ import annotations
 import numpy as np
 from numba import prange
 
-from ..._jit import kernel, parallel_kernel, thread_id
-from ...geometry.box import clip_to_box
+from ..._jit import inline_kernel, kernel, parallel_kernel, thread_id
 
 __all__ = ["instance_candidates", "object_rays", "merge_hits"]
+
+
+@inline_kernel
+def _clip_axis(lo, hi, o, d, t_enter, t_exit):
+    """:func:`rayaccel.geometry.box.clip_to_box` on one axis: exact for a zero component,
+    where the ray runs inside the slab for all ``t`` or for none."""
+    if d == 0.0:
+        if o < lo or o > hi:
+            return 1.0, 0.0
+        return t_enter, t_exit
+    t0 = (lo - o) / d
+    t1 = (hi - o) / d
+    if t0 > t1:
+        t0, t1 = t1, t0
+    return max(t_enter, t0), min(t_exit, t1)
+
+
+@inline_kernel
+def _clip_to_node(box, node, ox, oy, oz, dx, dy, dz, t_enter, t_exit):
+    """``(enter, exit)`` of the ray's interval inside row ``node`` of ``box`` (lo, hi); enter > exit on a miss."""
+    t_enter, t_exit = _clip_axis(box[node, 0], box[node, 3], ox, dx, t_enter, t_exit)
+    t_enter, t_exit = _clip_axis(box[node, 1], box[node, 4], oy, dy, t_enter, t_exit)
+    return _clip_axis(box[node, 2], box[node, 5], oz, dz, t_enter, t_exit)
 
 
 @parallel_kernel
@@ -46,8 +68,7 @@ def _walk(node_box, node_first, node_count, prim_order, origins, directions, t_m
             sp -= 1
             node = stack[tid, sp]
             visited += 1
-            enter, exit_ = clip_to_box(node_box[node, :3], node_box[node, 3:], ox, oy, oz, dx, dy, dz, t_min[i],
-                                       t_max[i])
+            enter, exit_ = _clip_to_node(node_box, node, ox, oy, oz, dx, dy, dz, t_min[i], t_max[i])
             if enter > exit_:
                 continue
             if node_count[node] == 0:
@@ -102,20 +123,22 @@ def instance_candidates(top, max_depth, origins, directions, t_min, t_max):
     return offsets, instance, entry, nodes_visited
 
 
-@parallel_kernel
+@kernel
 def object_rays(inverse, instance, ray, origins, directions):
     """Rays ``ray[k]`` moved into the frame of instance ``instance[k]`` by its inverse
-    transform ``inverse[instance[k]]`` (4, 4): origins and directions (m, 3)."""
+    transform ``inverse[instance[k]]`` (4, 4): origins and directions (m, 3). Serial: it is
+    memory-bound and cheap, and a parallel launch costs more than it when the cores are busy."""
     m = ray.shape[0]
     out_o = np.empty((m, 3))
     out_d = np.empty((m, 3))
-    for k in prange(m):
-        a = inverse[instance[k]]
+    for k in range(m):
+        g = instance[k]
         r = ray[k]
         for row in range(3):
-            out_o[k, row] = (a[row, 0] * origins[r, 0] + a[row, 1] * origins[r, 1] + a[row, 2] * origins[r, 2]
-                             + a[row, 3])
-            out_d[k, row] = a[row, 0] * directions[r, 0] + a[row, 1] * directions[r, 1] + a[row, 2] * directions[r, 2]
+            out_o[k, row] = (inverse[g, row, 0] * origins[r, 0] + inverse[g, row, 1] * origins[r, 1]
+                             + inverse[g, row, 2] * origins[r, 2] + inverse[g, row, 3])
+            out_d[k, row] = (inverse[g, row, 0] * directions[r, 0] + inverse[g, row, 1] * directions[r, 1]
+                             + inverse[g, row, 2] * directions[r, 2])
     return out_o, out_d
 
 
