@@ -12,6 +12,7 @@ A scene hands the rest of the library three things, all flat arrays:
 
 from __future__ import annotations
 
+import functools
 import gzip
 import io
 import os
@@ -80,7 +81,16 @@ class TriangleMesh:
     def __init__(self, vertices, faces):
         self.vertices = as_points("vertices", vertices)
         self.faces = as_index_triples("faces", faces, len(self.vertices))
-        self.geometry = np.ascontiguousarray(self.vertices[self.faces].reshape(-1, 9))
+
+    @functools.cached_property
+    def geometry(self) -> np.ndarray:
+        """(F, 9) float64: each triangle's three vertices, gathered on first use (a structure
+        that reorders them gathers its own copy instead)."""
+        return np.ascontiguousarray(self.vertices[self.faces].reshape(-1, 9))
+
+    def gather(self, order: np.ndarray) -> np.ndarray:
+        """``geometry[order]`` without gathering ``geometry`` first."""
+        return np.ascontiguousarray(self.vertices[self.faces[order]].reshape(-1, 9))
 
     def __len__(self) -> int:
         return len(self.faces)
@@ -136,6 +146,10 @@ class Spheres:
             raise ValueError(f"radii must be positive; radius {first} is {radii[first]}")
         self.radii = np.ascontiguousarray(radii)
         self.geometry = np.ascontiguousarray(np.column_stack([self.centers, self.radii]))
+
+    def gather(self, order: np.ndarray) -> np.ndarray:
+        """``geometry[order]``."""
+        return np.ascontiguousarray(self.geometry[order])
 
     def __len__(self) -> int:
         return len(self.centers)

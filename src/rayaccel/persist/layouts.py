@@ -181,7 +181,7 @@ def _load_bvh(accel, meta, arrays):
         c.require(isinstance(meta["sah_cost_at_build"], float), "sah_cost_at_build must be a float")
         accel.sah_cost_at_build = meta["sah_cost_at_build"]
     accel.bounds_kind = _BOUNDS[options["bounds"]]
-    accel.geometry = np.ascontiguousarray(accel.scene.geometry[order])
+    accel.geometry = accel.scene.gather(order)
     accel._pack_for_traversal(box, first, count, order, pad)
     accel.max_depth = int(depth.max())
 

@@ -99,7 +99,7 @@ class BoundingVolumeHierarchy(Accelerator):
         pad = _padding(box)
         box[:, :3] -= pad
         box[:, 3:] += pad
-        self.geometry = np.ascontiguousarray(scene.geometry[order])
+        self.geometry = scene.gather(order)
         self.bounds_kind = _BOUNDS[bounds]
         self._pack_for_traversal(box, first, count, order, pad)
         self.max_depth = int(node_depths(first, count).max())

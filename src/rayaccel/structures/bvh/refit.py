@@ -5,7 +5,7 @@ Shirley, "Ray Tracing Deformable Scenes Using Dynamic Bounding Volume
 Hierarchies", ACM TOG 2007; Embree's ``rtcCommitScene`` on
 ``RTC_BUILD_QUALITY_REFIT`` geometry): every leaf box becomes the box of its
 primitives' new positions and every inner box the union of its children's,
-level by level from the deepest, all nodes of a level in parallel. The tree's
+the leaves in parallel, then the inner nodes in one pass from the last node back. The tree's
 topology and leaf order are kept, so refitting costs a fraction of a build,
 but the boxes may overlap more than a fresh build's would: the SAH cost before
 and after (``stats()["sah_cost_at_build"]`` and ``["sah_cost"]``) tells when a
@@ -19,47 +19,65 @@ import time
 import numpy as np
 from numba import prange
 
-from ..._jit import parallel_kernel
-from ...geometry.bounds import primitive_bounds
+from ..._jit import kernel, parallel_kernel
+from ...geometry.bounds import primitive_extent
 from ...scene import Spheres, TriangleMesh
-from .nodes import node_depths
 
-__all__ = ["depth_levels", "refit_boxes", "refitted_scene", "refit_bvh"]
+__all__ = ["refit_boxes", "refit_geometry_boxes", "refitted_scene", "refit_bvh"]
 
 
-def depth_levels(node_first: np.ndarray, node_count: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``(by_depth, level_first)``: the nodes sorted by depth, and where each depth starts in
-    that order (``level_first[d] .. level_first[d + 1]``)."""
-    depth = node_depths(node_first, node_count)
-    by_depth = np.argsort(depth, kind="stable")
-    level_first = np.zeros(int(depth.max()) + 2, dtype=np.int64)
-    np.cumsum(np.bincount(depth), out=level_first[1:])
-    return by_depth, level_first
+@kernel
+def _inner_boxes(node_first, node_count, node_box):
+    """Every inner node's box as the union of its children's, from the last node back
+    (children follow their parents, so they are final when their parent is reached)."""
+    for node in range(node_first.shape[0] - 1, -1, -1):
+        if node_count[node] > 0:
+            continue
+        left = node_first[node]
+        for k in range(3):
+            node_box[node, k] = min(node_box[left, k], node_box[left + 1, k])
+            node_box[node, k + 3] = max(node_box[left, k + 3], node_box[left + 1, k + 3])
 
 
 @parallel_kernel
-def refit_boxes(node_first, node_count, leaf_lo, leaf_hi, by_depth, level_first, node_box):
-    """Write into ``node_box`` (n_nodes, 6) the box of every node: for a leaf, of the primitive
-    boxes ``leaf_lo``/``leaf_hi`` (in leaf order) of its primitives; for an inner node, the
-    union of its two children's. Levels go deepest first, each level's nodes in parallel."""
-    for level in range(level_first.shape[0] - 2, -1, -1):
-        for j in prange(level_first[level], level_first[level + 1]):
-            node = by_depth[j]
-            first = node_first[node]
-            count = node_count[node]
+def refit_boxes(node_first, node_count, leaf_lo, leaf_hi, node_box):
+    """Write into ``node_box`` (n_nodes, 6) the box of every node: for a leaf, of the boxes
+    ``leaf_lo``/``leaf_hi`` (in leaf order) of its primitives, all leaves in parallel; then
+    for the inner nodes the union of their children's, in one serial pass from the last
+    node back (six comparisons a node; a parallel launch per level cost more)."""
+    for node in prange(node_first.shape[0]):
+        count = node_count[node]
+        if count == 0:
+            continue
+        first = node_first[node]
+        for k in range(3):
+            node_box[node, k] = leaf_lo[first, k]
+            node_box[node, k + 3] = leaf_hi[first, k]
+        for p in range(first + 1, first + count):
             for k in range(3):
-                node_box[node, k] = np.inf
-                node_box[node, k + 3] = -np.inf
-            if count > 0:
-                for p in range(first, first + count):
-                    for k in range(3):
-                        node_box[node, k] = min(node_box[node, k], leaf_lo[p, k])
-                        node_box[node, k + 3] = max(node_box[node, k + 3], leaf_hi[p, k])
-            else:
-                for child in range(first, first + 2):
-                    for k in range(3):
-                        node_box[node, k] = min(node_box[node, k], node_box[child, k])
-                        node_box[node, k + 3] = max(node_box[node, k + 3], node_box[child, k + 3])
+                node_box[node, k] = min(node_box[node, k], leaf_lo[p, k])
+                node_box[node, k + 3] = max(node_box[node, k + 3], leaf_hi[p, k])
+    _inner_boxes(node_first, node_count, node_box)
+
+
+@parallel_kernel
+def refit_geometry_boxes(kind, geometry, node_first, node_count, node_box):
+    """:func:`refit_boxes` with the leaves' boxes taken straight from their primitives'
+    ``geometry`` (in leaf order), without a box per primitive in between."""
+    for node in prange(node_first.shape[0]):
+        count = node_count[node]
+        if count == 0:
+            continue
+        first = node_first[node]
+        for k in range(3):
+            node_box[node, k] = np.inf
+            node_box[node, k + 3] = -np.inf
+        for p in range(first, first + count):
+            for k in range(3):
+                lo, hi = primitive_extent(kind, geometry, p, k)
+                node_box[node, k] = min(node_box[node, k], lo)
+                node_box[node, k + 3] = max(node_box[node, k + 3], hi)
+    _inner_boxes(node_first, node_count, node_box)
 
 
 def refitted_scene(scene, vertices):
@@ -87,12 +105,10 @@ def refit_bvh(accel, vertices, padding) -> None:
         accel.sah_cost_at_build = accel._structure_stats()["sah_cost"]
     scene = refitted_scene(accel.scene, vertices)
     b = accel.bvh
-    geometry = np.ascontiguousarray(scene.geometry[b.prim_order])
-    leaf_lo, leaf_hi, scene_lo, scene_hi = primitive_bounds(scene.kind, geometry)
-    if getattr(accel, "_depth_levels", None) is None:
-        accel._depth_levels = depth_levels(b.node_first, b.node_count)
+    geometry = scene.gather(b.prim_order)
     box = np.empty_like(b.node_box)
-    refit_boxes(b.node_first, b.node_count, leaf_lo, leaf_hi, *accel._depth_levels, box)
+    refit_geometry_boxes(scene.kind, geometry, b.node_first, b.node_count, box)
+    scene_lo, scene_hi = box[0, :3].copy(), box[0, 3:].copy()
     pad = padding(box)
     box[:, :3] -= pad
     box[:, 3:] += pad

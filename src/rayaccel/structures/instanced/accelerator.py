@@ -26,7 +26,7 @@ from ...stats import box_area, surface_area_stats
 from ..base import Accelerator
 from ..bvh.build_top_down import SAH_BINNED, build_top_down
 from ..bvh.nodes import node_depths
-from ..bvh.refit import depth_levels, refit_boxes
+from ..bvh.refit import refit_boxes
 from .walk import instance_candidates, merge_hits, object_rays
 
 __all__ = ["InstancedScene"]
@@ -92,9 +92,7 @@ class InstancedScene(Accelerator):
             self.top_sah_cost_at_build = self._top_stats()["expected_cost"]
         self._place(self.instance_object, self.scene.transforms)
         box, first, count, order = self.top
-        if getattr(self, "_depth_levels", None) is None:
-            self._depth_levels = depth_levels(first, count)
-        refit_boxes(first, count, self.world_lo[order], self.world_hi[order], *self._depth_levels, box)
+        refit_boxes(first, count, self.world_lo[order], self.world_hi[order], box)
         self.refit_seconds = time.perf_counter() - start
 
     def intersect(self, origins, directions, t_min=0.0, t_max=np.inf, *, any_hit=False, counters=False,
