@@ -25,6 +25,7 @@ import numpy as np
 
 from ._validate import as_index_triples, as_points, as_positive_int
 from .geometry.bounds import primitive_bounds, sphere_centroids, triangle_centroids
+from .geometry.gather import gather_triangles
 from .geometry.kinds import SPHERE, TRIANGLE
 
 __all__ = [
@@ -88,9 +89,13 @@ class TriangleMesh:
         that reorders them gathers its own copy instead)."""
         return np.ascontiguousarray(self.vertices[self.faces].reshape(-1, 9))
 
-    def gather(self, order: np.ndarray) -> np.ndarray:
-        """``geometry[order]`` without gathering ``geometry`` first."""
-        return np.ascontiguousarray(self.vertices[self.faces[order]].reshape(-1, 9))
+    def gather(self, order: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+        """``geometry[order]`` without gathering ``geometry`` first (``order`` must index faces),
+        written into ``out`` (len(order), 9) when given."""
+        if out is None:
+            out = np.empty((len(order), 9))
+        gather_triangles(self.vertices, self.faces, np.ascontiguousarray(order, dtype=np.int64), out)
+        return out
 
     def __len__(self) -> int:
         return len(self.faces)
@@ -147,9 +152,9 @@ class Spheres:
         self.radii = np.ascontiguousarray(radii)
         self.geometry = np.ascontiguousarray(np.column_stack([self.centers, self.radii]))
 
-    def gather(self, order: np.ndarray) -> np.ndarray:
-        """``geometry[order]``."""
-        return np.ascontiguousarray(self.geometry[order])
+    def gather(self, order: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+        """``geometry[order]``, written into ``out`` (len(order), 4) when given."""
+        return np.take(self.geometry, order, axis=0, out=out)
 
     def __len__(self) -> int:
         return len(self.centers)

@@ -105,8 +105,8 @@ def refit_bvh(accel, vertices, padding) -> None:
         accel.sah_cost_at_build = accel._structure_stats()["sah_cost"]
     scene = refitted_scene(accel.scene, vertices)
     b = accel.bvh
-    geometry = scene.gather(b.prim_order)
-    box = np.empty_like(b.node_box)
+    geometry = scene.gather(b.prim_order, out=accel.geometry)  # in place: the old positions are not needed
+    box = b.node_box
     refit_geometry_boxes(scene.kind, geometry, b.node_first, b.node_count, box)
     scene_lo, scene_hi = box[0, :3].copy(), box[0, 3:].copy()
     pad = padding(box)
