@@ -88,9 +88,12 @@ def forest_variant(variant: str, size: int) -> dict:
     del warm, reference
     before = _resident_bytes()
     seconds, accel = _timed(lambda: ra.build(target, "bvh-binned"))
+    built = _resident_bytes() - before
     result = render(accel, camera, size, size, lights)
-    return {"variant": variant, "primitives": len(scene), "build_seconds": seconds,
-            "stats_bytes": accel.stats(np.zeros((1, 3)), np.ones((1, 3)))["bytes"],
+    stats = accel.stats(np.zeros((1, 3)), np.ones((1, 3)))
+    per_object = [s["bytes"] for s in stats.get("object_stats", [])]
+    return {"variant": variant, "primitives": len(scene), "build_seconds": seconds, "stats_bytes": stats["bytes"],
+            "top_bytes": stats.get("top_bytes", 0), "object_bytes": per_object, "built_bytes": built,
             "resident_bytes": _resident_bytes() - before, "render_seconds": result.trace_seconds,
             "primary_mrays": result.mrays_per_second}
 
@@ -101,8 +104,13 @@ def forest(size: int) -> None:
         out = subprocess.run([sys.executable, __file__, "--forest-variant", variant, "--size", str(size)],
                              check=True, capture_output=True, text=True).stdout
         row = json.loads(out.strip().splitlines()[-1])
-        print(f"  {variant:9s} {row['primitives']:,} primitives: structures {row['stats_bytes'] / 1e6:6.2f} MB, "
-              f"resident +{row['resident_bytes'] / 1e6:6.1f} MB after build and render, build "
+        parts = ""
+        if row["object_bytes"]:
+            parts = (f" (top level {row['top_bytes'] / 1e6:.2f}, objects "
+                     + " / ".join(f"{b / 1e6:.3f}" for b in row["object_bytes"]) + ")")
+        print(f"  {variant:9s} {row['primitives']:,} primitives: structures {row['stats_bytes'] / 1e6:6.2f} MB{parts}, "
+              f"resident +{row['built_bytes'] / 1e6:.1f} MB after the build, +{row['resident_bytes'] / 1e6:.1f} MB "
+              f"after the render, build "
               f"{row['build_seconds']:.3f} s, trace {row['render_seconds']:.3f} s "
               f"(primary {row['primary_mrays']:.2f} Mrays/s)")
 

@@ -19,6 +19,7 @@ intersector does the same).
 
 from __future__ import annotations
 
+import numba
 import numpy as np
 from numba import prange
 
@@ -108,8 +109,6 @@ def instance_candidates(top, max_depth, origins, directions, t_min, t_max):
     """``(offsets, instance, entry, nodes_visited)``: ray ``i`` enters the boxes of the
     instances ``instance[offsets[i]:offsets[i + 1]]`` at ``entry[...]``, nearest first;
     ``top`` is ``(node_box, node_first, node_count, prim_order)``."""
-    import numba
-
     n = len(origins)
     stack = np.empty((numba.config.NUMBA_NUM_THREADS, max_depth + 2), dtype=np.int64)
     offsets = np.zeros(n + 1, dtype=np.int64)
