@@ -6,6 +6,8 @@
 >>> hits = accel.intersect(origins, directions)
 """
 
+from .instances import Scene
+from .persist import CorruptFileError, load_accelerator
 from .rays import Camera, Hits, RayCounters
 from .scene import (
     MeshLoadError,
@@ -22,6 +24,9 @@ __all__ = [
     "Camera",
     "Hits",
     "RayCounters",
+    "Scene",
+    "CorruptFileError",
+    "load_accelerator",
     "MeshLoadError",
     "Spheres",
     "TriangleMesh",

@@ -1,4 +1,4 @@
-"""The ``rayaccel`` command: demo, render, stats, experiments, calibration."""
+"""The ``rayaccel`` command: demo, render, stats, build, experiments, calibration."""
 
 from __future__ import annotations
 
@@ -60,6 +60,30 @@ def _build(scene, method: str, options: dict, quiet: bool):
             raise CliError(f"bad option for {method}: {exc}") from None
 
 
+def _is_saved(spec: str) -> bool:
+    import zipfile
+
+    return Path(spec).is_file() and zipfile.is_zipfile(spec)
+
+
+def _accelerator(args):
+    """The structure a render or stats command works on: a saved one read from ``args.scene``
+    (``--method`` and ``-o`` do not apply then), or one built over the scene it names."""
+    from ._progress import status
+
+    if _is_saved(args.scene):
+        from .persist import load_accelerator
+
+        if args.option:
+            raise CliError(f"{args.scene} is a saved accelerator: its options were fixed when it was built")
+        with status(f"loading {args.scene}", enabled=not args.quiet):
+            accel = load_accelerator(args.scene)
+        if not args.quiet:
+            print(f"loaded {accel.method} over {len(accel.scene):,} primitives in {accel.load_seconds:.3f} s")
+        return accel
+    return _build(_load(args.scene, args.quiet), args.method, _parse_options(args.option), args.quiet)
+
+
 def _render(accel, args, quiet: bool, width: int, height: int):
     from ._progress import progress_bar
     from .rays import Camera
@@ -92,13 +116,12 @@ def _write_images(result, out: Path, heatmap: str | None, title: str) -> list[Pa
 
 
 def _cmd_render(args) -> None:
-    scene = _load(args.scene, args.quiet)
-    accel = _build(scene, args.method, _parse_options(args.option), args.quiet)
+    accel = _accelerator(args)
     width = args.width or args.size
     height = args.height or args.size
     result = _render(accel, args, args.quiet, width, height)
-    out = Path(args.out or f"{Path(args.scene).stem.replace(':', '-')}-{args.method}.png")
-    for path in _write_images(result, out, args.heatmap, f"{args.scene}, {args.method}"):
+    out = Path(args.out or f"{Path(args.scene).stem.replace(':', '-')}-{accel.method}.png")
+    for path in _write_images(result, out, args.heatmap, f"{args.scene}, {accel.method}"):
         print(f"wrote {path}")
     print(f"{accel.method}: build {accel.build_seconds:.3f} s, primary {result.mrays_per_second:.2f} Mrays/s, "
           f"shadow rays {result.shadow_rays:,} in {result.shadow_seconds:.3f} s")
@@ -113,6 +136,8 @@ def _stats_table(rows: list[dict], title: str):
         table.add_column(str(row.get("label", row["method"])), justify="right")
     keys = [k for k in rows[0] if k not in ("method", "label")]
     for key in keys:
+        if isinstance(rows[0].get(key), (list, dict)):
+            continue
         cells = []
         for row in rows:
             value = row.get(key, "")
@@ -124,9 +149,17 @@ def _stats_table(rows: list[dict], title: str):
 def _cmd_stats(args) -> None:
     from ._progress import table_console
 
+    accel = _accelerator(args)
+    table_console().print(_stats_table([accel.stats()], f"{args.scene} ({len(accel.scene):,} primitives)"))
+
+
+def _cmd_build(args) -> None:
     scene = _load(args.scene, args.quiet)
     accel = _build(scene, args.method, _parse_options(args.option), args.quiet)
-    table_console().print(_stats_table([accel.stats()], f"{args.scene} ({len(scene):,} primitives)"))
+    out = Path(args.out)
+    accel.save(out)
+    print(f"{accel.method} over {len(scene):,} primitives: built in {accel.build_seconds:.3f} s, "
+          f"wrote {out} ({out.stat().st_size / 1e6:.1f} MB)")
 
 
 def _cmd_demo(args) -> None:
@@ -280,7 +313,7 @@ def _parser() -> argparse.ArgumentParser:
     demo.set_defaults(func=_cmd_demo)
 
     render = sub.add_parser("render", help="render a scene to PNG, optionally with cost heatmaps")
-    render.add_argument("scene", help="mesh file, built-in mesh name, or spheres:N")
+    render.add_argument("scene", help="mesh file, built-in scene name, spheres:N, or a saved accelerator")
     render.add_argument("--method", default="grid")
     render.add_argument("-o", "--option", action="append", help="structure option key=value (repeatable)")
     render.add_argument("--size", type=int, default=512)
@@ -292,10 +325,17 @@ def _parser() -> argparse.ArgumentParser:
     render.set_defaults(func=_cmd_render)
 
     stats = sub.add_parser("stats", help="print the literature's statistics of a structure")
-    stats.add_argument("scene")
+    stats.add_argument("scene", help="mesh file, built-in scene name, spheres:N, or a saved accelerator")
     stats.add_argument("--method", default="grid")
     stats.add_argument("-o", "--option", action="append", help="structure option key=value (repeatable)")
     stats.set_defaults(func=_cmd_stats)
+
+    build = sub.add_parser("build", help="build a structure and save it to one file (render and stats read it)")
+    build.add_argument("scene", help="mesh file, built-in scene name, or spheres:N")
+    build.add_argument("--method", default="bvh-binned")
+    build.add_argument("-o", "--option", action="append", help="structure option key=value (repeatable)")
+    build.add_argument("--out", required=True, help="file to write (an uncompressed .npz, see rayaccel.persist)")
+    build.set_defaults(func=_cmd_build)
 
     experiment = sub.add_parser("experiment", help="reproduce a lecture experiment")
     experiment.add_argument("name", choices=["grid-vs-none", "grid-resolution", "bvh", "bounding-volumes",

@@ -1,4 +1,5 @@
-"""Procedural scenes for the lecture's kd-tree table: a forest, and a forest with a chair.
+"""Procedural scenes for the lecture's kd-tree table: a forest, and a forest with a chair; and an
+instanced forest (:class:`rayaccel.Scene`) of thousands of placements of one tree.
 
 The lecture compares structures on scenes whose primitives are spread very
 unevenly: a *forest* (many small objects scattered over a plane) and the same
@@ -11,15 +12,21 @@ y pointing up:
 * the chair is a seat, four legs and a back, each a box whose faces are
   tessellated into a fine grid of triangles (about 41,000 in all), so that it
   is far denser than the trees around it.
+
+The instanced forest places one tree mesh thousands of times, each with its
+own height, turn about the vertical and position, with the chair among them:
+a scene whose flattened copy would repeat the tree's triangles per placement,
+while its two-level structure stores them once.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+from .instances import Scene
 from .scene import TriangleMesh
 
-__all__ = ["forest", "chair", "forest_with_chair", "PROCEDURAL_SCENES"]
+__all__ = ["forest", "chair", "forest_with_chair", "forest_instanced", "PROCEDURAL_SCENES"]
 
 FOREST_SIZE = 100.0
 
@@ -62,8 +69,7 @@ def _tree(position, height):
     ]
 
 
-def _ground():
-    s = FOREST_SIZE
+def _ground(s=FOREST_SIZE):
     return np.array([[0.0, 0.0, 0.0], [s, 0.0, 0.0], [s, s, 0.0], [0.0, s, 0.0]]), np.array([[0, 1, 2], [0, 2, 3]])
 
 
@@ -126,8 +132,35 @@ def forest_with_chair(large: bool, seed: int = 0) -> TriangleMesh:
     return TriangleMesh(vertices, faces)
 
 
+def forest_instanced(n_trees: int = 5000, size: float = 250.0, seed: int = 0) -> Scene:
+    """``n_trees`` placements of one 28-triangle tree (heights 2-6 units, turned at random
+    about the vertical) over a ``size`` x ``size`` ground, about as dense as :func:`forest`,
+    with the chair of :func:`chair` (3 units tall) among them near the middle. Instance 0 is
+    the ground, 1 the chair, the trees follow."""
+    rng = np.random.default_rng(seed)
+    tree_vertices, tree_faces = _merge(_tree(np.zeros(3), 1.0))
+    tree = TriangleMesh(_y_up(tree_vertices), tree_faces)
+    ground_vertices, ground_faces = _ground(size)
+    scene = Scene()
+    scene.add(TriangleMesh(_y_up(ground_vertices), ground_faces))
+    seat = np.eye(4)
+    seat[:3, 3] = (0.5 * size + 1.3, 0.0, 0.5 * size - 0.7)
+    scene.add(chair(1.5), seat)
+    positions = rng.uniform(2.0, size - 2.0, (n_trees, 2))
+    heights = rng.uniform(2.0, 6.0, n_trees)
+    angles = rng.uniform(0.0, 2.0 * np.pi, n_trees)
+    for (x, z), height, angle in zip(positions, heights, angles):
+        place = np.eye(4)
+        cos, sin = np.cos(angle), np.sin(angle)
+        place[:3, :3] = height * np.array([[cos, 0.0, sin], [0.0, 1.0, 0.0], [-sin, 0.0, cos]])
+        place[:3, 3] = (x, 0.0, z)
+        scene.add(tree, place)
+    return scene
+
+
 PROCEDURAL_SCENES = {
     "forest": forest,
     "forest-large-chair": lambda: forest_with_chair(large=True),
     "forest-small-chair": lambda: forest_with_chair(large=False),
+    "forest-instanced": forest_instanced,
 }

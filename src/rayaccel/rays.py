@@ -45,7 +45,9 @@ class Hits(NamedTuple):
     ``u``, ``v`` (n,) float64: for triangles the barycentrics of the hit point
     ``(1 - u - v) * v0 + u * v1 + v * v2``; for spheres the texture coordinates
     ``u = azimuth / 2pi`` in [0, 1) and ``v = polar angle / pi`` in [0, 1]; NaN on a miss;
-    ``counters``: :class:`RayCounters` when asked for, else None.
+    ``counters``: :class:`RayCounters` when asked for, else None;
+    ``geom`` (n,) int64: which object of a :class:`rayaccel.Scene` was hit (the id
+    ``scene.add`` returned), 0 on any hit of a plain mesh or sphere set, -1 on a miss.
     """
 
     t: np.ndarray
@@ -53,6 +55,7 @@ class Hits(NamedTuple):
     u: np.ndarray
     v: np.ndarray
     counters: RayCounters | None = None
+    geom: np.ndarray | None = None
 
     @property
     def hit(self) -> np.ndarray:

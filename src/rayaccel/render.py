@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .instances import Scene
 from .rays import Camera
 from .scene import SPHERE, TRIANGLE, load_scene
 from .structures.base import Accelerator
@@ -94,6 +95,27 @@ def _normals(scene, hits_prim, u, v, points, vertex_normals):
     return np.where(length > 1e-12, n / np.maximum(length, 1e-300), flat)
 
 
+def _instance_surface(accel, geom, prim, u, v, points, vertex_normals):
+    """Normals and albedo of hits on a two-level scene: each object's own, computed in its
+    frame and turned into the world by the inverse transpose of its instance's transform."""
+    scene = accel.scene
+    normal = np.empty_like(points)
+    albedo = np.empty_like(points)
+    obj_of_hit = accel.instance_object[geom]
+    for o in np.unique(obj_of_hit):
+        chosen = obj_of_hit == o
+        obj = scene.objects[o]
+        inverse = accel.inverse[geom[chosen]]
+        local = np.einsum("kij,kj->ki", inverse[:, :3, :3], points[chosen]) + inverse[:, :3, 3]
+        if o not in vertex_normals:
+            vertex_normals[o] = obj.vertex_normals() if obj.kind != SPHERE else None
+        local_normal = _normals(obj, prim[chosen], u[chosen], v[chosen], local, vertex_normals[o])
+        world = np.einsum("kji,kj->ki", inverse[:, :3, :3], local_normal)
+        normal[chosen] = world / np.maximum(np.linalg.norm(world, axis=1, keepdims=True), 1e-300)
+        albedo[chosen] = _albedo(obj, prim[chosen])
+    return normal, albedo
+
+
 def render(accel, camera: Camera | None = None, width: int = 512, height: int = 512, lights=None,
            shadows: bool = True, progress=None, pixels=None) -> RenderResult:
     """Render ``accel.scene`` through ``camera`` with Lambert shading and hard shadows.
@@ -101,7 +123,8 @@ def render(accel, camera: Camera | None = None, width: int = 512, height: int = 
     Parameters
     ----------
     accel : Accelerator
-        Any built structure; its queries do all ray casting.
+        Any built structure, over a mesh, spheres or a :class:`rayaccel.Scene`; its queries
+        do all ray casting.
     camera : Camera, optional
         :func:`default_camera` when None.
     lights : (k, 3) array_like, optional
@@ -116,7 +139,8 @@ def render(accel, camera: Camera | None = None, width: int = 512, height: int = 
     scene = accel.scene
     camera = camera or default_camera(accel)
     lights = default_lights(accel, camera) if lights is None else np.atleast_2d(np.asarray(lights, float))
-    vertex_normals = scene.vertex_normals() if scene.kind != SPHERE else None
+    instanced = isinstance(scene, Scene)
+    vertex_normals = {} if instanced else scene.vertex_normals() if scene.kind != SPHERE else None
     scene_lo, scene_hi = accel.scene_box
     epsilon = 1e-6 * float(np.linalg.norm(scene_hi - scene_lo))
     image = np.zeros((height * width, 3))
@@ -142,10 +166,14 @@ def render(accel, camera: Camera | None = None, width: int = 512, height: int = 
         if h.any():
             prim = hits.prim[h]
             points = origins[h] + hits.t[h, None] * directions[h]
-            normal = _normals(scene, prim, hits.u[h], hits.v[h], points, vertex_normals)
+            if instanced:
+                normal, albedo = _instance_surface(accel, hits.geom[h], prim, hits.u[h], hits.v[h], points,
+                                                   vertex_normals)
+            else:
+                normal = _normals(scene, prim, hits.u[h], hits.v[h], points, vertex_normals)
+                albedo = _albedo(scene, prim)
             facing = np.einsum("ij,ij->i", normal, directions[h]) > 0
             normal[facing] *= -1
-            albedo = _albedo(scene, prim)
             color = _AMBIENT * albedo
             shifted = points + epsilon * normal
             for light in lights:

@@ -12,6 +12,7 @@ A scene hands the rest of the library three things, all flat arrays:
 
 from __future__ import annotations
 
+import functools
 import gzip
 import io
 import os
@@ -24,6 +25,7 @@ import numpy as np
 
 from ._validate import as_index_triples, as_points, as_positive_int
 from .geometry.bounds import primitive_bounds, sphere_centroids, triangle_centroids
+from .geometry.gather import gather_triangles
 from .geometry.kinds import SPHERE, TRIANGLE
 
 __all__ = [
@@ -80,7 +82,20 @@ class TriangleMesh:
     def __init__(self, vertices, faces):
         self.vertices = as_points("vertices", vertices)
         self.faces = as_index_triples("faces", faces, len(self.vertices))
-        self.geometry = np.ascontiguousarray(self.vertices[self.faces].reshape(-1, 9))
+
+    @functools.cached_property
+    def geometry(self) -> np.ndarray:
+        """(F, 9) float64: each triangle's three vertices, gathered on first use (a structure
+        that reorders them gathers its own copy instead)."""
+        return np.ascontiguousarray(self.vertices[self.faces].reshape(-1, 9))
+
+    def gather(self, order: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+        """``geometry[order]`` without gathering ``geometry`` first (``order`` must index faces),
+        written into ``out`` (len(order), 9) when given."""
+        if out is None:
+            out = np.empty((len(order), 9))
+        gather_triangles(self.vertices, self.faces, np.ascontiguousarray(order, dtype=np.int64), out)
+        return out
 
     def __len__(self) -> int:
         return len(self.faces)
@@ -136,6 +151,10 @@ class Spheres:
             raise ValueError(f"radii must be positive; radius {first} is {radii[first]}")
         self.radii = np.ascontiguousarray(radii)
         self.geometry = np.ascontiguousarray(np.column_stack([self.centers, self.radii]))
+
+    def gather(self, order: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+        """``geometry[order]``, written into ``out`` (len(order), 4) when given."""
+        return np.take(self.geometry, order, axis=0, out=out)
 
     def __len__(self) -> int:
         return len(self.centers)

@@ -15,11 +15,11 @@ from .._jit import inline_kernel, parallel_kernel, thread_count
 from ..counting_sort import chunk_range
 from .kinds import SPHERE
 
-__all__ = ["primitive_bounds", "triangle_centroids", "sphere_centroids"]
+__all__ = ["primitive_extent", "primitive_bounds", "triangle_centroids", "sphere_centroids"]
 
 
 @inline_kernel
-def _extent(kind, geometry, p, k):
+def primitive_extent(kind, geometry, p, k):
     """``(lo, hi)`` of primitive ``p`` on axis ``k``."""
     if kind == SPHERE:
         return geometry[p, k] - geometry[p, 3], geometry[p, k] + geometry[p, 3]
@@ -39,7 +39,7 @@ def _primitive_bounds(kind, geometry, n_chunks):
         first, end = chunk_range(n, n_chunks, c)
         for p in range(first, end):
             for k in range(3):
-                lo[p, k], hi[p, k] = _extent(kind, geometry, p, k)
+                lo[p, k], hi[p, k] = primitive_extent(kind, geometry, p, k)
                 chunk_box[c, k] = min(chunk_box[c, k], lo[p, k])
                 chunk_box[c, k + 3] = max(chunk_box[c, k + 3], hi[p, k])
     scene_lo = np.empty(3)

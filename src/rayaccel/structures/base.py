@@ -119,12 +119,32 @@ class Accelerator:
             u[miss] = np.nan
             v[miss] = np.nan
         ray_counters = RayCounters(work[:, 0].copy(), work[:, 1].copy(), work[:, 2].copy()) if counters else None
-        return Hits(t, prim, u, v, ray_counters)
+        return Hits(t, prim, u, v, ray_counters, np.where(prim >= 0, 0, -1))
 
     def occluded(self, origins, directions, t_min=0.0, t_max=np.inf, *, reorder=True) -> np.ndarray:
         """(n,) bool: whether anything lies on each ray within ``[t_min, t_max]``."""
         prim = self._cast(origins, directions, t_min, t_max, True, False, reorder)[2]
         return prim >= 0
+
+    def save(self, path) -> None:
+        """Write the built structure, its scene and options to one file (:mod:`rayaccel.persist`);
+        ``rayaccel.load_accelerator(path)`` reads it back without rebuilding."""
+        from ..persist import save
+
+        save(self, path)
+
+    def __reduce__(self):
+        from ..persist import reduce_accelerator
+
+        return reduce_accelerator(self)
+
+    def refit(self, vertices=None) -> None:
+        """Move the primitives and update the structure without rebuilding it: the BVH
+        methods only (``bvh-*``); the others raise ``NotImplementedError``."""
+        raise NotImplementedError(
+            f"{self.method!r} cannot be refitted (only the bvh-* methods can); build it again over the moved "
+            f"scene with ra.build(scene, {self.method!r})"
+        )
 
     def _cast(self, origins, directions, t_min, t_max, any_hit, counters, reorder):
         """Validate the rays and trace them: ``(rays, t, prim, u, v, work)``, each in the order given."""

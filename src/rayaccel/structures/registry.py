@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from ..instances import Scene
 from ..scene import Spheres, TriangleMesh
 from .bvh.accelerator import BVH_CLASSES
 from .grid.accelerator import UniformGrid
@@ -34,7 +35,10 @@ def build(scene, method: str = "grid", **options):
 
     Parameters
     ----------
-    scene : TriangleMesh, Spheres or trimesh.Trimesh
+    scene : TriangleMesh, Spheres, trimesh.Trimesh or Scene
+        For a :class:`rayaccel.Scene`, every distinct object gets a structure of
+        ``method`` with ``options``, under a top-level BVH over its instances
+        (:mod:`rayaccel.structures.instanced`).
     method : str
         One of :func:`methods`; the options of each are documented on its class
         (``help(rayaccel.build_class(method))``).
@@ -43,6 +47,11 @@ def build(scene, method: str = "grid", **options):
     """
     if method not in _METHODS:
         raise ValueError(f"unknown method {method!r}; choose one of {', '.join(_METHODS)}")
+    if isinstance(scene, Scene):
+        from .instanced.accelerator import InstancedScene
+
+        scene._require_instances()
+        return InstancedScene(scene, method, [_METHODS[method](obj, **options) for obj in scene.objects], options)
     if not isinstance(scene, (TriangleMesh, Spheres)):
         try:
             import trimesh
@@ -51,7 +60,7 @@ def build(scene, method: str = "grid", **options):
         if trimesh is not None and isinstance(scene, trimesh.Trimesh):
             scene = TriangleMesh(scene.vertices, scene.faces)
         else:
-            raise TypeError(f"scene must be a TriangleMesh, Spheres or trimesh.Trimesh, got {type(scene).__name__}")
+            raise TypeError(f"scene must be a TriangleMesh, Spheres, trimesh.Trimesh or Scene, got {type(scene).__name__}")
     return _METHODS[method](scene, **options)
 
 

@@ -15,6 +15,7 @@ from .build_ploc import build_ploc
 from .build_top_down import MORTON, OBJECT_MEDIAN, SAH_BINNED, SAH_SWEEP, SPATIAL_MEDIAN, build_top_down
 from .layout import BvhArrays, node_rows, pack_nodes
 from .nodes import node_depths
+from .refit import refit_bvh
 from .split_morton import morton_codes
 from ...geometry.kdop import KDOP_NORMALS, kdop_surface_areas
 from .traverse import BOX, KDOP, SPHERE_VOLUME, bvh_trace_kernel
@@ -29,6 +30,11 @@ _BOUNDS = {"aabb": BOX, "sphere": SPHERE_VOLUME, "kdop": KDOP}
 # included): the slab test's rounding, about 1e-16 of the coordinates, can then
 # never cull a node that a ray only touches, such as one at a vertex it aims at.
 _ROUNDING_PAD = 1e-11
+
+
+def _padding(node_box):
+    """The rounding margin for a tree whose root box is ``node_box[0]``."""
+    return _ROUNDING_PAD * float(np.abs(node_box[0]).max() + (node_box[0, 3:] - node_box[0, :3]).max())
 
 
 class BoundingVolumeHierarchy(Accelerator):
@@ -90,24 +96,42 @@ class BoundingVolumeHierarchy(Accelerator):
         prim_bounds = self._primitive_bounds()
         box, first, count, order = self._build(prim_bounds, max_leaf_size, traversal_cost, intersection_cost,
                                                **builder_options)
-        pad = _ROUNDING_PAD * float(np.abs(box[0]).max() + (box[0, 3:] - box[0, :3]).max())
+        pad = _padding(box)
         box[:, :3] -= pad
         box[:, 3:] += pad
-        self.bvh = BvhArrays(box, first, count, order, pack_nodes(box, first, count))
-        self.geometry = np.ascontiguousarray(scene.geometry[order])
+        self.geometry = scene.gather(order)
         self.bounds_kind = _BOUNDS[bounds]
+        self._pack_for_traversal(box, first, count, order, pad)
+        self.max_depth = int(node_depths(first, count).max())
+        self.build_seconds = time.perf_counter() - start
+
+    def _pack_for_traversal(self, box, first, count, order, pad):
+        """Set :attr:`bvh` to the binary tree (boxes already grown by ``pad``) and derive from it
+        and :attr:`geometry` every array the traversal reads. The build, :meth:`refit` and
+        :func:`rayaccel.load_accelerator` all go through here."""
+        self.pad = pad
+        self.bvh = BvhArrays(box, first, count, order, pack_nodes(box, first, count))
+        bounds = self.options["bounds"]
         if bounds == "kdop":
-            self.volume = fit_kdops(scene.kind, self.geometry, first, count, KDOP_NORMALS)
+            self.volume = fit_kdops(self.scene.kind, self.geometry, first, count, KDOP_NORMALS)
             self.volume[:, :7] -= 2.0 * pad
             self.volume[:, 7:] += 2.0 * pad
         elif bounds == "sphere":
-            self.volume = fit_spheres(scene.kind, self.geometry, first, count, sphere_fit == "children")
+            self.volume = fit_spheres(self.scene.kind, self.geometry, first, count,
+                                      self.options["sphere_fit"] == "children")
         else:
             self.volume = np.zeros((0, 1))
         self._volume_rows = node_rows(self.volume) if len(self.volume) else self.volume
-        self.max_depth = int(node_depths(first, count).max())
+        wide = bounds == "aabb" and self.options["width"] == 4
         self.wide = wide_records(box, first, count) if wide else None
-        self.build_seconds = time.perf_counter() - start
+
+    def refit(self, vertices):
+        """Move the primitives to new positions and refit the tree's volumes bottom-up
+        (:mod:`.refit`), keeping its topology: an animated or deformed mesh (same faces,
+        new ``vertices`` (V, 3)), or spheres (same radii, new centres (N, 3)).
+        ``stats()`` then shows ``sah_cost`` beside ``sah_cost_at_build``; when it has grown
+        much, a fresh ``ra.build`` traces faster."""
+        refit_bvh(self, vertices, _padding)
 
     def _build(self, prim_bounds, max_leaf_size, traversal_cost, intersection_cost, **options):
         raise NotImplementedError
@@ -156,6 +180,7 @@ class BoundingVolumeHierarchy(Accelerator):
                                 intersection_cost=self.options["intersection_cost"])
         result.update(sa)
         result["sah_cost"] = sa["expected_cost"]
+        result["sah_cost_at_build"] = getattr(self, "sah_cost_at_build", result["sah_cost"])
         return result
 
 

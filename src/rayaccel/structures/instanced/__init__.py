@@ -1,0 +1,1 @@
+"""Two-level structures over scenes of placed objects and instances."""
