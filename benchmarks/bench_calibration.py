@@ -57,8 +57,8 @@ def main() -> None:
     for kind in (TRIANGLE, SPHERE):
         cal.calibrate(kind)
     table = Table(title=f"grid cost calibration, {args.runs} in a row per kind and condition")
-    for column in ("kind", "condition", "load average", "fallbacks", "retried", "median C_i/C_c", "min", "max", "max/min",
-                   "median uncertainty"):
+    for column in ("kind", "condition", "load average", "fallbacks", "retried", "median C_i/C_c", "min", "max",
+                   "max/min", "median uncertainty"):
         table.add_column(column, justify="left" if column in ("kind", "condition") else "right")
     with Progress(console=console) as progress:
         task = progress.add_task("calibrating", total=2 * len(args.conditions) * args.runs)
@@ -74,7 +74,8 @@ def main() -> None:
                     measured = np.array([e["ratio"] for e in entries if e["source"] == "measured"])
                     spread = [f"{measured.min():.3f}", f"{measured.max():.3f}",
                               f"{measured.max() / measured.min():.3f}"] if len(measured) else ["-"] * 3
-                    table.add_row(name, condition, f"{os.getloadavg()[0]:.1f}", str(sum(e["source"] == "default" for e in entries)),
+                    fallbacks = sum(e["source"] == "default" for e in entries)
+                    table.add_row(name, condition, f"{os.getloadavg()[0]:.1f}", str(fallbacks),
                                   str(sum(e["attempts"] > 1 for e in entries)),
                                   f"{np.median(measured):.3f}" if len(measured) else "-", *spread,
                                   f"{np.median([e['uncertainty'] for e in entries]):.1%}")

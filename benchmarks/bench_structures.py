@@ -58,8 +58,6 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from rich.table import Table
 
 sys.path.insert(0, str(Path(__file__).parent))
-import rayaccel as ra  # noqa: E402
-
 from _common import (  # noqa: E402
     ROOT,
     ensure_competitors,
@@ -78,6 +76,8 @@ from peers import (  # noqa: E402
     RaySet,
     Subject,
 )
+
+import rayaccel as ra  # noqa: E402
 
 ROUNDS = 5  # timing rounds; each figure is the median
 SHADOW_T_MIN = 1e-4  # in units of light - hit: a relative epsilon

@@ -15,6 +15,7 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
+
 import rayaccel as ra
 
 BUILD_REPEATS = 3  # builds timed per subject; the build figure is their median

@@ -113,7 +113,8 @@ def test_unreadable_files(tmp_path):
     with pytest.raises(ra.MeshLoadError, match="cannot read"):
         ra.load_mesh(truncated)
     garbage = tmp_path / "garbage.ply"
-    garbage.write_bytes(b"ply\nformat binary_little_endian 1.0\nelement vertex 1000\nproperty float x\nend_header\n\x00\x01")
+    garbage.write_bytes(b"ply\nformat binary_little_endian 1.0\nelement vertex 1000\nproperty float x\n"
+                        b"end_header\n\x00\x01")
     with pytest.raises(ra.MeshLoadError):
         ra.load_mesh(garbage)
     empty = tmp_path / "empty.obj"

@@ -4,12 +4,6 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
-from hypothesis import strategies as st
-
-import rayaccel as ra
-from rayaccel.geometry.kdop import KDOP_NORMALS
-
 from conftest import (
     assert_one_and_twin_triangles_hit,
     assert_same_hits,
@@ -18,6 +12,11 @@ from conftest import (
     random_rays,
     vertex_and_edge_rays,
 )
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+import rayaccel as ra
+from rayaccel.geometry.kdop import KDOP_NORMALS
 
 BUILDERS = [m for m in ra.methods() if m.startswith("bvh-")]
 BOUNDS = ["aabb", "sphere", "kdop"]

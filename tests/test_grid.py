@@ -4,11 +4,6 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
-from hypothesis import strategies as st
-
-import rayaccel as ra
-
 from conftest import (
     assert_same_hits,
     axis_parallel_rays,
@@ -16,6 +11,10 @@ from conftest import (
     random_rays,
     vertex_and_edge_rays,
 )
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+import rayaccel as ra
 
 GRID_OPTIONS = [
     {},
@@ -52,7 +51,8 @@ def test_grid_on_bunny(bunny):
     reference = ra.build(bunny, "none")
     origins, directions = camera_rays(bunny, 40)
     for options in ({}, {"insert": "exact"}):
-        assert_same_hits(reference.intersect(origins, directions), ra.build(bunny, "grid", **options).intersect(origins, directions))
+        grid = ra.build(bunny, "grid", **options)
+        assert_same_hits(reference.intersect(origins, directions), grid.intersect(origins, directions))
 
 
 @pytest.mark.parametrize("insert", ["bbox", "exact"])

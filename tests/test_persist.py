@@ -8,11 +8,10 @@ import pickle
 
 import numpy as np
 import pytest
+from conftest import random_rays
 
 import rayaccel as ra
 from rayaccel.persist import CorruptFileError, write_members
-
-from conftest import random_rays
 
 
 def _assert_identical(a, b):

@@ -4,12 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from conftest import assert_same_hits, camera_rays, random_rays
 
 import rayaccel as ra
 from rayaccel.ray_order import MIN_RAYS, coherent_batch
 from rayaccel.rays import Hits, prepare_rays
-
-from conftest import assert_same_hits, camera_rays, random_rays
 
 
 @pytest.fixture(scope="module")

@@ -4,10 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from conftest import assert_same_hits, camera_rays, random_rays
 
 import rayaccel as ra
-
-from conftest import assert_same_hits, camera_rays, random_rays
 
 BVH_METHODS = [m for m in ra.methods() if m.startswith("bvh-")]
 

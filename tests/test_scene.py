@@ -52,7 +52,9 @@ def test_procedural_forest_scenes():
     assert 19_000 <= len(forest) <= 21_000
     large, small = ra.load_scene("forest-large-chair"), ra.load_scene("forest-small-chair")
     assert len(large) == len(small) > len(forest) + 30_000
-    chair_extent = lambda scene: np.ptp(scene.vertices[len(forest.vertices):], axis=0)
+    def chair_extent(scene):
+        return np.ptp(scene.vertices[len(forest.vertices):], axis=0)
+
     assert chair_extent(large).max() > 25 and chair_extent(small).max() < 1
     b = forest.bounds()
     assert b.scene_hi[1] - b.scene_lo[1] < 10  # y is up, the forest is flat

@@ -4,10 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from conftest import assert_same_hits, camera_rays, random_rays
 
 import rayaccel as ra
-
-from conftest import assert_same_hits, camera_rays, random_rays
 
 
 def _rotation(axis, angle):
@@ -23,8 +22,8 @@ def _affine(linear, translation):
     return matrix
 
 
-SHEARED = _affine(_rotation([1, 2, 3], 0.7) @ np.diag([1.5, 0.6, 2.0]) @ np.array([[1, 0.3, 0], [0, 1, 0.2], [0, 0, 1]]),
-                  [0.04, -0.02, 0.03])
+SHEAR = np.array([[1, 0.3, 0], [0, 1, 0.2], [0, 0, 1]])
+SHEARED = _affine(_rotation([1, 2, 3], 0.7) @ np.diag([1.5, 0.6, 2.0]) @ SHEAR, [0.04, -0.02, 0.03])
 SIMILAR = _affine(0.4 * _rotation([0, 1, 0], 1.1), [-0.05, 0.01, 0.02])
 
 

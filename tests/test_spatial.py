@@ -4,14 +4,6 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
-from hypothesis import strategies as st
-
-import rayaccel as ra
-from rayaccel.geometry.overlap import prim_overlaps_box
-from rayaccel.structures.kdtree.events import END, PLANAR, START, write_node_events
-from rayaccel.structures.kdtree.layout import LEAF
-
 from conftest import (
     assert_one_and_twin_triangles_hit,
     assert_same_hits,
@@ -20,6 +12,13 @@ from conftest import (
     random_rays,
     vertex_and_edge_rays,
 )
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+import rayaccel as ra
+from rayaccel.geometry.overlap import prim_overlaps_box
+from rayaccel.structures.kdtree.events import END, PLANAR, START, write_node_events
+from rayaccel.structures.kdtree.layout import LEAF
 
 SPATIAL = ["kdtree", "octree", "hgrid", "grid-bvh"]
 VARIANTS = {

@@ -6,18 +6,11 @@
 >>> hits = accel.intersect(origins, directions)
 """
 
+from .catalog import builtin_scenes, load_scene
 from .instances import Scene
 from .persist import CorruptFileError, load_accelerator
 from .rays import Camera, Hits, RayCounters
-from .scene import (
-    MeshLoadError,
-    Spheres,
-    TriangleMesh,
-    builtin_scenes,
-    load_mesh,
-    load_scene,
-    random_spheres,
-)
+from .scene import MeshLoadError, Spheres, TriangleMesh, load_mesh, random_spheres
 from .structures.registry import build, build_class, methods
 
 __all__ = [

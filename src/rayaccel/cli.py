@@ -43,7 +43,7 @@ def _parse_vector(text: str, name: str) -> np.ndarray:
 
 def _load(spec: str, quiet: bool):
     from ._progress import status
-    from .scene import load_scene
+    from .catalog import load_scene
 
     with status(f"loading {spec}", enabled=not quiet):
         return load_scene(spec)
@@ -283,7 +283,7 @@ def _cmd_calibrate(args) -> None:
 
 
 def _cmd_methods(args) -> None:
-    from .scene import builtin_scenes
+    from .catalog import builtin_scenes
     from .structures.registry import build_class, methods
 
     for method in methods():

@@ -16,7 +16,8 @@ import numpy as np
 
 from .instances import Scene
 from .rays import Camera
-from .scene import SPHERE, TRIANGLE, load_scene
+from .catalog import load_scene
+from .scene import SPHERE, TRIANGLE
 from .structures.base import Accelerator
 
 __all__ = ["RenderResult", "default_camera", "default_lights", "render", "save_png", "save_heatmap", "warm_up"]

@@ -25,9 +25,9 @@ from numba import prange
 
 from .._jit import parallel_kernel
 from .._timing import median_seconds
+from ..catalog import load_scene
 from ..geometry.kdop import KDOP_NORMALS
 from ..render import default_camera
-from ..scene import load_scene
 from ..structures.bvh.traverse import KDOP, _enter, volume_ray_setup
 from ..structures.registry import build
 from ._report import markdown_table, new_figure, save_figure
@@ -121,8 +121,8 @@ def write_report(rows: list[VolumeRow], out_dir, side: int) -> tuple[Path, Path]
     fig, (left,) = new_figure(1)
     for i, label in enumerate(VOLUMES):
         mine = [r for r in rows if r.volume == label]
-        left.scatter([r.test_ns for r in mine], [r.tightness for r in mine], s=[20 + 400 * r.trace_seconds for r in mine],
-                     color=f"C{i}", label=label, alpha=0.7)
+        left.scatter([r.test_ns for r in mine], [r.tightness for r in mine],
+                     s=[20 + 400 * r.trace_seconds for r in mine], color=f"C{i}", label=label, alpha=0.7)
     left.set(xlabel="ns per ray-volume test", ylabel="tightness P(child | parent)",
              title="cheap vs tight (marker area: trace time)")
     left.grid(True, alpha=0.3)

@@ -19,8 +19,8 @@ from pathlib import Path
 import numpy as np
 
 from .._timing import median_seconds
+from ..catalog import load_scene
 from ..render import default_camera, render, save_heatmap
-from ..scene import load_scene
 from ..structures.registry import build, methods
 from ._report import markdown_table, new_figure, save_figure
 

@@ -17,10 +17,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-
 from .._timing import median_seconds
+from ..catalog import load_scene
 from ..render import default_camera
-from ..scene import load_scene
 from ..structures.grid.calibrate import calibration
 from ..structures.registry import build
 from ._report import markdown_table, new_figure, save_figure
@@ -90,7 +89,8 @@ def write_report(rows: list[ResolutionRow], out_dir, side: int) -> tuple[Path, P
         mine = [r for r in rows if r.scene == name]
         ax.loglog([r.density for r in mine], [r.build_seconds + r.trace_seconds for r in mine], "o-", color=f"C{i}",
                   label=f"{name}: build + trace")
-        ax.loglog([r.density for r in mine], [r.trace_seconds for r in mine], ":", color=f"C{i}", label=f"{name}: trace")
+        ax.loglog([r.density for r in mine], [r.trace_seconds for r in mine], ":", color=f"C{i}",
+                  label=f"{name}: trace")
         model, spread = mine[0].model_density, mine[0].model_uncertainty
         ax.axvline(model, color=f"C{i}", alpha=0.6, linestyle="--",
                    label=f"{name}: cost model 2 C_i / C_c = {model:.1f} +- {spread:.0%}")

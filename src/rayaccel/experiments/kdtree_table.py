@@ -16,8 +16,8 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
+from ..catalog import load_scene
 from ..render import default_camera, render, warm_up
-from ..scene import load_scene
 from ..structures.registry import build
 from ._report import build_and_render_bars, markdown_table
 

@@ -14,8 +14,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from .._timing import median_seconds
+from ..catalog import load_scene
 from ..render import default_camera, warm_up
-from ..scene import load_scene
 from ..structures.registry import build
 from ._report import markdown_table, new_figure, save_figure
 

@@ -12,8 +12,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from ..catalog import load_scene
 from ..render import save_heatmap, save_png, warm_up
-from ..scene import load_scene
 from ..structures.registry import methods as all_methods
 from ._report import build_and_render_bars, markdown_table
 from .kdtree_table import measure

@@ -14,7 +14,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-
 from numba import prange
 
 from .._jit import inline_kernel, parallel_kernel

@@ -17,7 +17,7 @@ from ..structures.base import Accelerator
 from ..structures.instanced.accelerator import InstancedScene
 from ..structures.registry import build_class, methods
 from . import checks as c
-from .layouts import tree_checks, layout_of
+from .layouts import layout_of, tree_checks
 
 __all__ = ["describe", "rebuild"]
 

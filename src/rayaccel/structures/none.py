@@ -16,7 +16,8 @@ def brute_force_kernel(kind, geom, origins, directions, t_min, t_max, hit_slot, 
                        work):
     n_prims = geom.shape[0]
     for i in prange(origins.shape[0]):
-        ray = ray_setup(origins[i, 0], origins[i, 1], origins[i, 2], directions[i, 0], directions[i, 1], directions[i, 2])
+        ray = ray_setup(origins[i, 0], origins[i, 1], origins[i, 2],
+                        directions[i, 0], directions[i, 1], directions[i, 2])
         best_t = t_max[i]
         best_prim = -1
         best_u = 0.0

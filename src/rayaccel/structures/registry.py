@@ -60,7 +60,8 @@ def build(scene, method: str = "grid", **options):
         if trimesh is not None and isinstance(scene, trimesh.Trimesh):
             scene = TriangleMesh(scene.vertices, scene.faces)
         else:
-            raise TypeError(f"scene must be a TriangleMesh, Spheres, trimesh.Trimesh or Scene, got {type(scene).__name__}")
+            raise TypeError("scene must be a TriangleMesh, Spheres, trimesh.Trimesh or Scene, "
+                            f"got {type(scene).__name__}")
     return _METHODS[method](scene, **options)
 
 

@@ -9,6 +9,7 @@ import numpy as np
 
 from ..._jit import thread_count
 from ..._validate import check_number
+from ...geometry.kdop import KDOP_NORMALS, kdop_surface_areas
 from ...stats import box_area, surface_area_stats
 from ..base import Accelerator
 from .build_ploc import build_ploc
@@ -17,7 +18,6 @@ from .layout import BvhArrays, node_rows, pack_nodes
 from .nodes import node_depths
 from .refit import refit_bvh
 from .split_morton import morton_codes
-from ...geometry.kdop import KDOP_NORMALS, kdop_surface_areas
 from .traverse import BOX, KDOP, SPHERE_VOLUME, bvh_trace_kernel
 from .traverse_wide import wide_trace_kernel
 from .volumes import fit_kdops, fit_spheres

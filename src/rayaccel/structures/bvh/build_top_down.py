@@ -17,7 +17,6 @@ holds at most ``max_leaf_size`` primitives.
 from __future__ import annotations
 
 import numpy as np
-
 from numba import prange
 
 from ..._jit import kernel, parallel_kernel

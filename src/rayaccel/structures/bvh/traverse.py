@@ -142,7 +142,8 @@ def bvh_trace_kernel(bounds_kind, node_box, node_volume, node_links, prim_order,
         n_tests = 0
         node = 0
         sp = 0
-        if _enter(bounds_kind, node_box, node_volume, 0, ray, proj_o, proj_inv, near_faces, ray_t_min, best_t) == np.inf:
+        root_entry = _enter(bounds_kind, node_box, node_volume, 0, ray, proj_o, proj_inv, near_faces, ray_t_min, best_t)
+        if root_entry == np.inf:
             node = -1
         while node >= 0:
             n_nodes += 1
@@ -162,8 +163,10 @@ def bvh_trace_kernel(bounds_kind, node_box, node_volume, node_links, prim_order,
             else:
                 near = node_links[node, 6]
                 far = near + 1
-                t_near = _enter(bounds_kind, node_box, node_volume, near, ray, proj_o, proj_inv, near_faces, ray_t_min, best_t)
-                t_far = _enter(bounds_kind, node_box, node_volume, far, ray, proj_o, proj_inv, near_faces, ray_t_min, best_t)
+                t_near = _enter(bounds_kind, node_box, node_volume, near, ray, proj_o, proj_inv, near_faces, ray_t_min,
+                                best_t)
+                t_far = _enter(bounds_kind, node_box, node_volume, far, ray, proj_o, proj_inv, near_faces, ray_t_min,
+                               best_t)
                 if t_far < t_near:
                     near, far = far, near
                     t_near, t_far = t_far, t_near

@@ -51,7 +51,8 @@ class UniformGrid(Accelerator):
             raise ValueError(f"insert must be one of {_INSERT_MODES}, got {insert!r}")
         if not (isinstance(density, (int, float)) and np.isfinite(density) and density > 0):
             raise ValueError(f"density must be a positive number, got {density!r}")
-        super().__init__(scene, {"density": density, "resolution": resolution, "insert": insert, "mailbox": bool(mailbox)})
+        super().__init__(scene, {"density": density, "resolution": resolution, "insert": insert,
+                                 "mailbox": bool(mailbox)})
         start = time.perf_counter()
         bounds = self._primitive_bounds()
         lo, hi = grid_box(bounds.scene_lo, bounds.scene_hi)

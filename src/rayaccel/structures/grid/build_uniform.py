@@ -26,7 +26,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-
 from numba import prange
 
 from ..._jit import inline_kernel, kernel, parallel_kernel, thread_count

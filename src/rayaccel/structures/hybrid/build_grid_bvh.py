@@ -63,6 +63,6 @@ def build_grid_bvh(bounds, kind, geom, density, threshold, max_leaf_size, bins, 
         node_box[:, :3] -= pad
         node_box[:, 3:] += pad
         depth = int(node_depths(node_first, node_count).max())
-    arrays = GridBvhArrays(grid.lo, grid.hi, grid.res, grid.cell_size, grid.cell_first, order.astype(np.int32), cell_root,
-                           node_box, node_first, node_count)
+    arrays = GridBvhArrays(grid.lo, grid.hi, grid.res, grid.cell_size, grid.cell_first, order.astype(np.int32),
+                           cell_root, node_box, node_first, node_count)
     return arrays, depth
