@@ -111,15 +111,12 @@ class Accelerator:
             order (:mod:`rayaccel.ray_order`); the results are in the given order
             either way. ``False`` traces the rays in the given order.
         """
-        rays, t, prim, u, v, work = self._cast(origins, directions, t_min, t_max, bool(any_hit), counters, reorder)
+        rays, t, prim, u, v, work = self._cast(origins, directions, t_min, t_max, bool(any_hit), counters, reorder,
+                                               coordinates=True)
         if self.scene.kind == SPHERE:
             sphere_hit_coords(self.scene.geometry, rays.origins, rays.directions, t, prim, u, v)
-        else:
-            miss = prim < 0
-            u[miss] = np.nan
-            v[miss] = np.nan
         ray_counters = RayCounters(work[:, 0].copy(), work[:, 1].copy(), work[:, 2].copy()) if counters else None
-        return Hits(t, prim, u, v, ray_counters, np.where(prim >= 0, 0, -1))
+        return Hits(t, prim, u, v, ray_counters, np.minimum(prim, 0))
 
     def occluded(self, origins, directions, t_min=0.0, t_max=np.inf, *, reorder=True) -> np.ndarray:
         """(n,) bool: whether anything lies on each ray within ``[t_min, t_max]``."""
@@ -146,14 +143,16 @@ class Accelerator:
             f"scene with ra.build(scene, {self.method!r})"
         )
 
-    def _cast(self, origins, directions, t_min, t_max, any_hit, counters, reorder):
-        """Validate the rays and trace them: ``(rays, t, prim, u, v, work)``, each in the order given."""
+    def _cast(self, origins, directions, t_min, t_max, any_hit, counters, reorder, coordinates=False):
+        """Validate the rays and trace them: ``(rays, t, prim, u, v, work)``, each in the order given.
+        The kernels write hits only, so ``t`` and ``prim`` start as misses, and so do ``u`` and
+        ``v`` (NaN) when the caller reads them (``coordinates``); otherwise they are scratch."""
         rays = prepare_rays(origins, directions, t_min, t_max)
         n = len(rays.origins)
         t = np.full(n, np.inf)
         prim = np.full(n, -1, dtype=np.int64)
-        u = np.zeros(n)
-        v = np.zeros(n)
+        u = np.full(n, np.nan) if coordinates else np.empty(n)
+        v = np.full(n, np.nan) if coordinates else np.empty(n)
         work = np.zeros((n if counters else 0, 3), dtype=np.int64)
         batch = coherent_batch(rays, *self.scene_box) if reorder and n >= MIN_RAYS else rays
         if n:

@@ -110,8 +110,10 @@ class BoundingVolumeHierarchy(Accelerator):
         and :attr:`geometry` every array the traversal reads. The build, :meth:`refit` and
         :func:`rayaccel.load_accelerator` all go through here."""
         self.pad = pad
-        self.bvh = BvhArrays(box, first, count, order, pack_nodes(box, first, count))
         bounds = self.options["bounds"]
+        wide = bounds == "aabb" and self.options["width"] == 4
+        records = pack_nodes(box[:1], first[:1], count[:1]) if wide else pack_nodes(box, first, count)
+        self.bvh = BvhArrays(box, first, count, order, records)
         if bounds == "kdop":
             self.volume = fit_kdops(self.scene.kind, self.geometry, first, count, KDOP_NORMALS)
             self.volume[:, :7] -= 2.0 * pad
@@ -122,7 +124,6 @@ class BoundingVolumeHierarchy(Accelerator):
         else:
             self.volume = np.zeros((0, 1))
         self._volume_rows = node_rows(self.volume) if len(self.volume) else self.volume
-        wide = bounds == "aabb" and self.options["width"] == 4
         self.wide = wide_records(box, first, count) if wide else None
 
     def refit(self, vertices):
