@@ -5,9 +5,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._jit import kernel
+import math
 
-__all__ = ["as_points", "as_index_triples", "as_per_ray", "as_positive_int", "check_number", "first_zero_row"]
+from numba import prange
+
+from ._jit import kernel, parallel_kernel
+
+__all__ = ["as_points", "as_index_triples", "as_per_ray", "as_positive_int", "check_number", "first_zero_row",
+           "check_ray_arrays"]
 
 
 @kernel
@@ -28,8 +33,44 @@ def first_zero_row(array):
     return -1
 
 
-def as_points(name: str, values, *, allow_empty: bool = False) -> np.ndarray:
-    """``values`` as a C-contiguous float64 (n, 3) array of finite coordinates."""
+@parallel_kernel
+def _ray_defects(origins, directions):
+    """How many rows of ``origins`` and of ``directions`` hold a NaN or infinite coordinate,
+    and how many rows of ``directions`` are all zero: one pass over both, on all threads."""
+    bad_origins = 0
+    bad_directions = 0
+    zero_directions = 0
+    for i in prange(origins.shape[0]):
+        ox, oy, oz = origins[i, 0], origins[i, 1], origins[i, 2]
+        dx, dy, dz = directions[i, 0], directions[i, 1], directions[i, 2]
+        bad_origins += not (math.isfinite(ox) and math.isfinite(oy) and math.isfinite(oz))
+        bad_directions += not (math.isfinite(dx) and math.isfinite(dy) and math.isfinite(dz))
+        zero_directions += dx == 0.0 and dy == 0.0 and dz == 0.0
+    return bad_origins, bad_directions, zero_directions
+
+
+def _nonfinite_error(name: str, array: np.ndarray, count: int) -> ValueError:
+    first = _first_nonfinite_row(array)
+    return ValueError(f"{name} has {count} row(s) with NaN or infinite coordinates "
+                      f"(first at index {first}: {array[first].tolist()})")
+
+
+def check_ray_arrays(origins: np.ndarray, directions: np.ndarray) -> None:
+    """Raise ``ValueError`` for NaN or infinite coordinates in the (n, 3) float64 ``origins`` or
+    ``directions``, or an all-zero direction (a ray without a direction has no first hit)."""
+    bad_origins, bad_directions, zero_directions = _ray_defects(origins, directions)
+    if bad_origins:
+        raise _nonfinite_error("origins", origins, bad_origins)
+    if bad_directions:
+        raise _nonfinite_error("directions", directions, bad_directions)
+    if zero_directions:
+        raise ValueError(f"{zero_directions} ray direction(s) have zero length "
+                         f"(first at index {first_zero_row(directions)})")
+
+
+def as_points(name: str, values, *, allow_empty: bool = False, check_finite: bool = True) -> np.ndarray:
+    """``values`` as a C-contiguous float64 (n, 3) array, of finite coordinates unless
+    ``check_finite`` is False (the caller checks them later)."""
     try:
         array = np.asarray(values)
     except Exception as exc:  # ragged nested sequences and the like
@@ -45,13 +86,8 @@ def as_points(name: str, values, *, allow_empty: bool = False) -> np.ndarray:
     if array.shape[0] == 0 and not allow_empty:
         raise ValueError(f"{name} is empty")
     array = np.ascontiguousarray(array, dtype=np.float64)
-    first = _first_nonfinite_row(array)
-    if first >= 0:
-        bad = ~np.isfinite(array).all(axis=1)
-        raise ValueError(
-            f"{name} has {int(bad.sum())} row(s) with NaN or infinite coordinates "
-            f"(first at index {first}: {array[first].tolist()})"
-        )
+    if check_finite and _first_nonfinite_row(array) >= 0:
+        raise _nonfinite_error(name, array, int((~np.isfinite(array).all(axis=1)).sum()))
     return array
 
 
@@ -82,11 +118,12 @@ def as_per_ray(name: str, value, n_rays: int) -> np.ndarray:
     """A scalar or an (n_rays,) array as a float64 (n_rays,) array without NaN."""
     array = np.asarray(value, dtype=np.float64)
     if array.ndim == 0:
-        array = np.full(n_rays, float(array))
-    elif array.shape != (n_rays,):
+        if np.isnan(array):
+            raise ValueError(f"{name} contains NaN")
+        return np.full(n_rays, float(array))
+    if array.shape != (n_rays,):
         raise ValueError(f"{name} must be a scalar or have shape ({n_rays},), got {array.shape}")
-    else:
-        array = np.ascontiguousarray(array)
+    array = np.ascontiguousarray(array)
     if np.isnan(array).any():
         raise ValueError(f"{name} contains NaN")
     return array

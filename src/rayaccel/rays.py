@@ -6,7 +6,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ._validate import as_per_ray, as_points, first_zero_row
+from ._validate import as_per_ray, as_points, check_ray_arrays
 
 __all__ = ["RayBatch", "RayCounters", "Hits", "Camera", "prepare_rays"]
 
@@ -70,8 +70,8 @@ def prepare_rays(origins, directions, t_min=0.0, t_max=np.inf) -> RayBatch:
     NaN limits, and zero-length directions: a ray without a direction has no
     defined first hit, so it is an error rather than a silent miss.
     """
-    origins = as_points("origins", origins, allow_empty=True)
-    directions = as_points("directions", directions, allow_empty=True)
+    origins = as_points("origins", origins, allow_empty=True, check_finite=False)
+    directions = as_points("directions", directions, allow_empty=True, check_finite=False)
     if origins.shape != directions.shape:
         if len(origins) == 1:
             origins = np.ascontiguousarray(np.broadcast_to(origins, directions.shape))
@@ -79,10 +79,7 @@ def prepare_rays(origins, directions, t_min=0.0, t_max=np.inf) -> RayBatch:
             raise ValueError(
                 f"origins {origins.shape} and directions {directions.shape} must have the same shape"
             )
-    first_zero = first_zero_row(directions)
-    if first_zero >= 0:
-        zero = ~directions.any(axis=1)
-        raise ValueError(f"{int(zero.sum())} ray direction(s) have zero length (first at index {first_zero})")
+    check_ray_arrays(origins, directions)
     n = len(origins)
     return RayBatch(origins, directions, as_per_ray("t_min", t_min, n), as_per_ray("t_max", t_max, n),
                     np.arange(n, dtype=np.int64))
