@@ -120,11 +120,11 @@ def test_octree_and_grids_rays_through_cell_corners_and_planes(small_dragon):
         _check(reference, accel, *_rays_in_planes(small_dragon, axes, corners[np.arange(2000), axes], rng))
 
 
-def _overlapping_prims(scene, lo, hi):
-    """Primitives that meet the box lo..hi shrunk by a millionth (so touching does not count)."""
+def _overlapping_prims(scene, b, lo, hi):
+    """Primitives that meet the box lo..hi shrunk by a millionth (so touching does not count);
+    ``b`` is ``scene.bounds()``."""
     shrink = 1e-6 * (hi - lo)
     lo, hi = lo + shrink, hi - shrink
-    b = scene.bounds()
     candidates = np.flatnonzero(((b.lo <= hi) & (b.hi >= lo)).all(axis=1))
     center, half = 0.5 * (lo + hi), 0.5 * (hi - lo)
     return {int(p) for p in candidates if prim_overlaps_box(scene.kind, scene.geometry, int(p), *center, *half)}
@@ -146,10 +146,11 @@ def test_kdtree_invariants(closed_sphere_mesh, exact_below):
     assert np.allclose(cells[below, 3 + kd.axis[inner]], kd.node_split[inner])
     assert np.allclose(cells[below + 1, kd.axis[inner]], kd.node_split[inner])
     # every primitive is referenced by every leaf whose interior it overlaps
+    bounds = scene.bounds()
     for node in np.flatnonzero(leaf):
         first, count = kd.node_link[node, 0], kd.count[node]
         held = set(kd.leaf_prims[first:first + count].tolist())
-        assert _overlapping_prims(scene, cells[node, :3], cells[node, 3:]) <= held
+        assert _overlapping_prims(scene, bounds, cells[node, :3], cells[node, 3:]) <= held
     stats = accel.stats()
     assert 1.0 <= stats["avg_prims_per_nonempty_leaf"] <= 8.0
     assert stats["max_depth"] <= round(8 + 1.3 * np.log2(len(scene)))
@@ -205,10 +206,11 @@ def test_octree_invariants(closed_sphere_mesh):
         children = cells[first:first + 8]
         assert np.allclose(children[:, :3].min(axis=0), cells[node, :3])
         assert np.allclose(children[:, 3:].max(axis=0), cells[node, 3:])
+    bounds = scene.bounds()
     for node in np.flatnonzero(leaf):
         first, count = tree.node_link[node]
         held = set(tree.leaf_prims[first:first + count].tolist())
-        assert _overlapping_prims(scene, cells[node, :3], cells[node, 3:]) <= held
+        assert _overlapping_prims(scene, bounds, cells[node, :3], cells[node, 3:]) <= held
 
 
 def test_hgrid_invariants(small_dragon):

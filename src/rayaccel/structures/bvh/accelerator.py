@@ -21,7 +21,7 @@ from .split_morton import morton_codes
 from .traverse import BOX, KDOP, SPHERE_VOLUME, bvh_trace_kernel
 from .traverse_wide import wide_trace_kernel
 from .volumes import fit_kdops, fit_spheres
-from .wide import wide_records
+from .wide import wide_records, wide_tree
 
 __all__ = ["BVH_CLASSES"]
 
@@ -105,10 +105,11 @@ class BoundingVolumeHierarchy(Accelerator):
         self.max_depth = int(node_depths(first, count).max())
         self.build_seconds = time.perf_counter() - start
 
-    def _pack_for_traversal(self, box, first, count, order, pad):
+    def _pack_for_traversal(self, box, first, count, order, pad, same_tree=False):
         """Set :attr:`bvh` to the binary tree (boxes already grown by ``pad``) and derive from it
         and :attr:`geometry` every array the traversal reads. The build, :meth:`refit` and
-        :func:`rayaccel.load_accelerator` all go through here."""
+        :func:`rayaccel.load_accelerator` all go through here; ``same_tree`` (a refit) keeps
+        the four-wide collapse of the tree packed before and repacks only its boxes."""
         self.pad = pad
         bounds = self.options["bounds"]
         wide = bounds == "aabb" and self.options["width"] == 4
@@ -124,7 +125,9 @@ class BoundingVolumeHierarchy(Accelerator):
         else:
             self.volume = np.zeros((0, 1))
         self._volume_rows = node_rows(self.volume) if len(self.volume) else self.volume
-        self.wide = wide_records(box, first, count) if wide else None
+        if wide and not same_tree:
+            self._wide_tree = wide_tree(box, first, count)
+        self.wide = wide_records(box, first, count, self._wide_tree) if wide else None
 
     def refit(self, vertices):
         """Move the primitives to new positions and refit the tree's volumes bottom-up
