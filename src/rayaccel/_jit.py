@@ -33,7 +33,7 @@ from numba import types
 from numba.core import cgutils
 from numba.extending import intrinsic
 
-__all__ = ["kernel", "inline_kernel", "parallel_kernel", "set_threads", "thread_count", "thread_id", "prefetch",
+__all__ = ["kernel", "inline_kernel", "parallel_kernel", "set_threads", "thread_count", "max_threads", "thread_id", "prefetch",
            "unsigned"]
 
 _COMMON = dict(cache=True, nogil=True, error_model="numpy", fastmath=False)
@@ -70,6 +70,11 @@ def set_threads(n: int) -> None:
 def thread_count() -> int:
     """Threads that parallel kernels use now."""
     return numba.get_num_threads()
+
+
+def max_threads() -> int:
+    """The most threads parallel kernels can use in this process (``NUMBA_NUM_THREADS``)."""
+    return numba.config.NUMBA_NUM_THREADS
 
 
 thread_id = numba.get_thread_id

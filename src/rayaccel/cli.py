@@ -4,8 +4,10 @@ from __future__ import annotations
 
 import argparse
 import ast
+import contextlib
 import os
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -84,7 +86,7 @@ def _accelerator(args):
     return _build(_load(args.scene, args.quiet), args.method, _parse_options(args.option), args.quiet)
 
 
-def _render(accel, args, quiet: bool, width: int, height: int):
+def _render(accel, args, quiet: bool, width: int, height: int, client=None):
     from ._progress import progress_bar
     from .rays import Camera
     from .render import default_camera, render
@@ -100,8 +102,33 @@ def _render(accel, args, quiet: bool, width: int, height: int):
     if getattr(args, "light", None):
         lights = np.array([_parse_vector(text, "--light") for text in args.light])
     shadows = not getattr(args, "no_shadows", False)
-    with progress_bar(f"rendering {width}x{height} with {accel.method}", height, enabled=not quiet) as advance:
-        return render(accel, camera, width, height, lights, shadows=shadows, progress=advance)
+    where = "" if client is None else f" on {len(client.nthreads())} Dask workers"
+    with progress_bar(f"rendering {width}x{height} with {accel.method}{where}", height, enabled=not quiet) as advance:
+        if client is None:
+            return render(accel, camera, width, height, lights, shadows=shadows, progress=advance)
+        from .distributed import render as render_tiles
+
+        return render_tiles(accel, camera, width, height, lights, shadows=shadows, client=client, progress=advance)
+
+
+@contextlib.contextmanager
+def _cluster(args):
+    """Yield the Dask client that ``--workers`` or ``--scheduler`` ask for, or None."""
+    workers, scheduler = getattr(args, "workers", None), getattr(args, "scheduler", None)
+    if workers is None and scheduler is None:
+        yield None
+        return
+    if workers is not None and scheduler is not None:
+        raise CliError("give --workers (a local Dask cluster) or --scheduler (an existing one), not both")
+    if workers is not None and workers < 1:
+        raise CliError(f"--workers must be at least 1, got {workers}")
+    from ._progress import status
+    from .distributed import connect
+
+    with contextlib.ExitStack() as stack:
+        with status(f"connecting to {scheduler or f'a local cluster of {workers} workers'}", enabled=not args.quiet):
+            client = stack.enter_context(connect(workers=workers, scheduler=scheduler))
+        yield client
 
 
 def _write_images(result, out: Path, heatmap: str | None, title: str) -> list[Path]:
@@ -119,12 +146,16 @@ def _cmd_render(args) -> None:
     accel = _accelerator(args)
     width = args.width or args.size
     height = args.height or args.size
-    result = _render(accel, args, args.quiet, width, height)
+    with _cluster(args) as client:
+        start = time.perf_counter()
+        result = _render(accel, args, args.quiet, width, height, client)
+        wall = time.perf_counter() - start
     out = Path(args.out or f"{Path(args.scene).stem.replace(':', '-')}-{accel.method}.png")
     for path in _write_images(result, out, args.heatmap, f"{args.scene}, {accel.method}"):
         print(f"wrote {path}")
     print(f"{accel.method}: build {accel.build_seconds:.3f} s, primary {result.mrays_per_second:.2f} Mrays/s, "
-          f"shadow rays {result.shadow_rays:,} in {result.shadow_seconds:.3f} s")
+          f"shadow rays {result.shadow_rays:,} in {result.shadow_seconds:.3f} s"
+          + ("" if client is None else f"; {wall:.3f} s wall clock on the cluster, structure sent included"))
 
 
 def _stats_table(rows: list[dict], title: str):
@@ -202,14 +233,16 @@ def _cmd_experiment(args) -> None:
     from ._progress import progress_bar
     from .structures.registry import methods
 
+    if args.name != "grid-vs-none" and (args.workers is not None or args.scheduler is not None):
+        raise CliError("--workers and --scheduler apply to experiment grid-vs-none only")
     if args.name == "grid-vs-none":
         from .experiments import grid_vs_none
 
         sizes = [n for n in (10, 100, 1_000, 10_000, 100_000, 1_000_000, 10_000_000) if n <= args.max_n]
         if not sizes:
             raise CliError("--max-n must be at least 10")
-        with progress_bar("grid vs no grid", len(sizes), enabled=not args.quiet) as advance:
-            rows = grid_vs_none.run(sizes, image_size=args.size, progress=advance)
+        with _cluster(args) as client, progress_bar("grid vs no grid", len(sizes), enabled=not args.quiet) as advance:
+            rows = grid_vs_none.run(sizes, image_size=args.size, progress=advance, client=client)
         table, plot = grid_vs_none.write_report(rows, args.out, args.size)
     elif args.name == "bvh":
         from .experiments import bvh_builders
@@ -305,6 +338,12 @@ def _parser() -> argparse.ArgumentParser:
         p.add_argument("--light", action="append", help="point light x,y,z (repeatable)")
         p.add_argument("--no-shadows", action="store_true", help="skip shadow rays")
 
+    def cluster_args(p, what):
+        p.add_argument("--workers", type=int, metavar="N",
+                       help=f"{what} on a local Dask cluster of N worker processes (needs rayaccel[dask])")
+        p.add_argument("--scheduler", metavar="ADDRESS",
+                       help=f"{what} on the existing Dask cluster whose scheduler is at ADDRESS")
+
     demo = sub.add_parser("demo", help="render the default scene with every structure and compare them")
     demo.add_argument("--scene", default="bunny")
     demo.add_argument("--size", type=int, default=512)
@@ -322,6 +361,7 @@ def _parser() -> argparse.ArgumentParser:
     render.add_argument("--heatmap", choices=["nodes", "tests", "both"], help="also write cost heatmaps")
     render.add_argument("--out", help="output PNG (default: SCENE-METHOD.png)")
     camera_args(render)
+    cluster_args(render, "render the image in tiles")
     render.set_defaults(func=_cmd_render)
 
     stats = sub.add_parser("stats", help="print the literature's statistics of a structure")
@@ -345,6 +385,7 @@ def _parser() -> argparse.ArgumentParser:
     experiment.add_argument("--method", help="kdtree-table: the structure tabulated (default kdtree)")
     experiment.add_argument("--size", type=int, default=512, help="image width and height (primary rays per side)")
     experiment.add_argument("--out", default="rayaccel-out", help="folder for the table and plot")
+    cluster_args(experiment, "grid-vs-none: render the rows of 100,000 spheres or more in tiles")
     experiment.set_defaults(func=_cmd_experiment)
 
     calibrate = sub.add_parser("calibrate", help="measure C_i and C_c for the grid cost model")
@@ -370,7 +411,7 @@ def main(argv=None) -> int:
 
             set_threads(args.threads)
         args.func(args)
-    except (CliError, MeshLoadError, ValueError, TypeError) as exc:
+    except (CliError, MeshLoadError, ValueError, TypeError, ImportError) as exc:
         print(f"rayaccel: error: {exc}", file=sys.stderr)
         return 2
     return 0

@@ -20,7 +20,8 @@ from .catalog import load_scene
 from .scene import SPHERE, TRIANGLE
 from .structures.base import Accelerator
 
-__all__ = ["RenderResult", "default_camera", "default_lights", "render", "save_png", "save_heatmap", "warm_up"]
+__all__ = ["RenderResult", "PixelResult", "default_camera", "default_lights", "render", "render_pixels", "assemble",
+           "save_png", "save_heatmap", "warm_up"]
 
 _BAND_ROWS = 64
 _BACKGROUND_TOP = np.array([0.10, 0.12, 0.16])
@@ -117,6 +118,85 @@ def _instance_surface(accel, geom, prim, u, v, points, vertex_normals):
     return normal, albedo
 
 
+@dataclass
+class PixelResult:
+    """Some pixels of a frame, in the order asked for: ``color`` (m, 3) linear RGB, ``nodes`` and
+    ``tests`` (m,) the primary ray's work, and the time and rays the queries took."""
+
+    color: np.ndarray
+    nodes: np.ndarray
+    tests: np.ndarray
+    primary_seconds: float = 0.0
+    shadow_seconds: float = 0.0
+    primary_rays: int = 0
+    shadow_rays: int = 0
+
+
+def render_pixels(accel, camera: Camera, width: int, height: int, lights, shadows: bool = True, pixels=None,
+                  progress=None) -> PixelResult:
+    """Shade the flat pixel indices ``pixels`` (row-major; all when None) of a ``width`` x ``height``
+    frame, in bands of ``_BAND_ROWS`` rows' worth of pixels, one batch query per band.
+
+    A pixel's colour depends on that pixel alone, so any split of a frame into pieces of whole bands
+    (as :func:`rayaccel.distributed.render` makes) gives the same batches as :func:`render`, and the
+    same bits. ``progress(done_pixels, total_pixels)`` after each band.
+    """
+    scene = accel.scene
+    lights = np.atleast_2d(np.asarray(lights, float))
+    instanced = isinstance(scene, Scene)
+    vertex_normals = {} if instanced else scene.vertex_normals() if scene.kind != SPHERE else None
+    scene_lo, scene_hi = accel.scene_box
+    epsilon = 1e-6 * float(np.linalg.norm(scene_hi - scene_lo))
+    rendered = np.arange(height * width) if pixels is None else np.asarray(pixels, dtype=np.int64).ravel()
+    if len(rendered) and (rendered.min() < 0 or rendered.max() >= height * width):
+        raise ValueError(f"pixels must be flat indices in [0, {height * width}) for a {width}x{height} image")
+    result = PixelResult(np.zeros((len(rendered), 3)), np.zeros(len(rendered), dtype=np.int64),
+                         np.zeros(len(rendered), dtype=np.int64))
+    band = _BAND_ROWS * width
+    for first in range(0, len(rendered), band):
+        band_pixels = rendered[first:first + band]
+        rows = slice(first, first + len(band_pixels))
+        origins, directions = camera.rays(width, height, band_pixels)
+        start = time.perf_counter()
+        hits = accel.intersect(origins, directions, counters=True)
+        result.primary_seconds += time.perf_counter() - start
+        result.primary_rays += len(band_pixels)
+        result.nodes[rows] = hits.counters.nodes
+        result.tests[rows] = hits.counters.tests
+        sky = (band_pixels // width / max(height - 1, 1))[:, None]
+        color = (1 - sky) * _BACKGROUND_TOP + sky * _BACKGROUND_BOTTOM
+        h = hits.hit
+        if h.any():
+            prim = hits.prim[h]
+            points = origins[h] + hits.t[h, None] * directions[h]
+            if instanced:
+                normal, albedo = _instance_surface(accel, hits.geom[h], prim, hits.u[h], hits.v[h], points,
+                                                   vertex_normals)
+            else:
+                normal = _normals(scene, prim, hits.u[h], hits.v[h], points, vertex_normals)
+                albedo = _albedo(scene, prim)
+            facing = np.einsum("ij,ij->i", normal, directions[h]) > 0
+            normal[facing] *= -1
+            lit_color = _AMBIENT * albedo
+            shifted = points + epsilon * normal
+            for light in lights:
+                to_light = light - shifted
+                lambert = np.clip(np.einsum("ij,ij->i", normal, to_light) / np.linalg.norm(to_light, axis=1), 0, None)
+                lit = lambert > 0
+                if shadows and lit.any():
+                    start = time.perf_counter()
+                    blocked = accel.occluded(shifted[lit], to_light[lit], 0.0, 1.0)
+                    result.shadow_seconds += time.perf_counter() - start
+                    result.shadow_rays += int(lit.sum())
+                    lambert[np.flatnonzero(lit)[blocked]] = 0.0
+                lit_color = lit_color + albedo * lambert[:, None] * (0.92 / len(lights))
+            color[h] = lit_color
+        result.color[rows] = color
+        if progress is not None:
+            progress(rows.stop, len(rendered))
+    return result
+
+
 def render(accel, camera: Camera | None = None, width: int = 512, height: int = 512, lights=None,
            shadows: bool = True, progress=None, pixels=None) -> RenderResult:
     """Render ``accel.scene`` through ``camera`` with Lambert shading and hard shadows.
@@ -137,63 +217,28 @@ def render(accel, camera: Camera | None = None, width: int = 512, height: int = 
         Render only these flat pixel indices (row-major), leaving the others black with no
         work counted: a sample of a frame too slow to render whole. All pixels when None.
     """
-    scene = accel.scene
     camera = camera or default_camera(accel)
-    lights = default_lights(accel, camera) if lights is None else np.atleast_2d(np.asarray(lights, float))
-    instanced = isinstance(scene, Scene)
-    vertex_normals = {} if instanced else scene.vertex_normals() if scene.kind != SPHERE else None
-    scene_lo, scene_hi = accel.scene_box
-    epsilon = 1e-6 * float(np.linalg.norm(scene_hi - scene_lo))
-    image = np.zeros((height * width, 3))
-    nodes = np.zeros(height * width, dtype=np.int64)
-    tests = np.zeros(height * width, dtype=np.int64)
-    result = RenderResult(image=image, nodes=nodes, tests=tests)
+    lights = default_lights(accel, camera) if lights is None else lights
     rendered = np.arange(height * width) if pixels is None else np.asarray(pixels, dtype=np.int64).ravel()
-    if len(rendered) and (rendered.min() < 0 or rendered.max() >= height * width):
-        raise ValueError(f"pixels must be flat indices in [0, {height * width}) for a {width}x{height} image")
-    band = _BAND_ROWS * width
-    for first in range(0, len(rendered), band):
-        band_pixels = rendered[first:first + band]
-        origins, directions = camera.rays(width, height, band_pixels)
-        start = time.perf_counter()
-        hits = accel.intersect(origins, directions, counters=True)
-        result.primary_seconds += time.perf_counter() - start
-        result.primary_rays += len(band_pixels)
-        nodes[band_pixels] = hits.counters.nodes
-        tests[band_pixels] = hits.counters.tests
-        sky = (band_pixels // width / max(height - 1, 1))[:, None]
-        image[band_pixels] = (1 - sky) * _BACKGROUND_TOP + sky * _BACKGROUND_BOTTOM
-        h = hits.hit
-        if h.any():
-            prim = hits.prim[h]
-            points = origins[h] + hits.t[h, None] * directions[h]
-            if instanced:
-                normal, albedo = _instance_surface(accel, hits.geom[h], prim, hits.u[h], hits.v[h], points,
-                                                   vertex_normals)
-            else:
-                normal = _normals(scene, prim, hits.u[h], hits.v[h], points, vertex_normals)
-                albedo = _albedo(scene, prim)
-            facing = np.einsum("ij,ij->i", normal, directions[h]) > 0
-            normal[facing] *= -1
-            color = _AMBIENT * albedo
-            shifted = points + epsilon * normal
-            for light in lights:
-                to_light = light - shifted
-                lambert = np.clip(np.einsum("ij,ij->i", normal, to_light) / np.linalg.norm(to_light, axis=1), 0, None)
-                lit = lambert > 0
-                if shadows and lit.any():
-                    start = time.perf_counter()
-                    blocked = accel.occluded(shifted[lit], to_light[lit], 0.0, 1.0)
-                    result.shadow_seconds += time.perf_counter() - start
-                    result.shadow_rays += int(lit.sum())
-                    lambert[np.flatnonzero(lit)[blocked]] = 0.0
-                color = color + albedo * lambert[:, None] * (0.92 / len(lights))
-            image[band_pixels[h]] = color
-        if progress is not None:
-            progress(round(height * min(first + band, len(rendered)) / max(len(rendered), 1)), height)
-    result.image = image.reshape(height, width, 3)
-    result.nodes = nodes.reshape(height, width)
-    result.tests = tests.reshape(height, width)
+    report = None if progress is None else lambda done, total: progress(round(height * done / max(total, 1)), height)
+    shaded = render_pixels(accel, camera, width, height, lights, shadows, rendered, report)
+    return assemble(shaded, rendered, width, height)
+
+
+def assemble(shaded: PixelResult, pixels: np.ndarray, width: int, height: int,
+             result: RenderResult | None = None) -> RenderResult:
+    """Write the pixels ``shaded`` (flat indices ``pixels``) into ``result``, a black frame with no work
+    counted when None, adding their ray counts and times; returns ``result``."""
+    if result is None:
+        result = RenderResult(np.zeros((height, width, 3)), np.zeros((height, width), dtype=np.int64),
+                              np.zeros((height, width), dtype=np.int64))
+    result.image.reshape(-1, 3)[pixels] = shaded.color
+    result.nodes.reshape(-1)[pixels] = shaded.nodes
+    result.tests.reshape(-1)[pixels] = shaded.tests
+    result.primary_seconds += shaded.primary_seconds
+    result.shadow_seconds += shaded.shadow_seconds
+    result.primary_rays += shaded.primary_rays
+    result.shadow_rays += shaded.shadow_rays
     return result
 
 

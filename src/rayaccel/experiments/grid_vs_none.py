@@ -38,6 +38,7 @@ class GridVsNoneRow:
     none_seconds: float
     none_extrapolated: bool
     none_pixels: int
+    on_cluster: bool = False
 
     @property
     def grid_seconds(self) -> float:
@@ -52,20 +53,30 @@ def _experiment_camera() -> Camera:
     return Camera.framing(np.zeros(3), np.ones(3), view=(0.35, 0.3, 1.0))
 
 
-def _time_brute_force(scene, camera, lights, size, rng) -> tuple[float, bool, int]:
+def _render(accel, camera, size, lights, pixels=None, client=None):
+    if client is None:
+        return render(accel, camera, size, size, lights, pixels=pixels)
+    from ..distributed import render as render_tiles
+
+    return render_tiles(accel, camera, size, size, lights, pixels=pixels, client=client)
+
+
+def _time_brute_force(scene, camera, lights, size, rng, client=None) -> tuple[float, bool, int]:
     accel = build(scene, "none")
     n_pixels = size * size
     sample = int(min(n_pixels, max(256, _BRUTE_FORCE_TEST_BUDGET / (2 * len(scene)))))
     pixels = np.sort(rng.choice(n_pixels, sample, replace=False)) if sample < n_pixels else None
     start = time.perf_counter()
-    render(accel, camera, size, size, lights, pixels=pixels)
+    _render(accel, camera, size, lights, pixels, client)
     seconds = time.perf_counter() - start
     return seconds * n_pixels / sample, sample < n_pixels, sample
 
 
 def run(sizes=(10, 100, 1_000, 10_000, 100_000, 1_000_000), image_size: int = 512, seed: int = 0,
-        progress=None) -> list[GridVsNoneRow]:
-    """Time grid (build + render) and brute force for each scene size; ``progress(i, total)``."""
+        progress=None, client=None, distribute_from: int = 100_000) -> list[GridVsNoneRow]:
+    """Time grid (build + render) and brute force for each scene size; ``progress(i, total)``.
+
+    With a ``distributed.Client``, scenes of ``distribute_from`` spheres or more render on its cluster."""
     camera = _experiment_camera()
     rng = np.random.default_rng(seed)
     warm_up = random_spheres(10, seed=seed)
@@ -78,11 +89,13 @@ def run(sizes=(10, 100, 1_000, 10_000, 100_000, 1_000_000), image_size: int = 51
         start = time.perf_counter()
         grid = build(scene, "grid", density=8.0)
         build_seconds = time.perf_counter() - start
+        remote = client if n >= distribute_from else None
         start = time.perf_counter()
-        render(grid, camera, image_size, image_size, lights)
+        _render(grid, camera, image_size, lights, client=remote)
         render_seconds = time.perf_counter() - start
-        none_seconds, extrapolated, pixels = _time_brute_force(scene, camera, lights, image_size, rng)
-        rows.append(GridVsNoneRow(n, build_seconds, render_seconds, none_seconds, extrapolated, pixels))
+        none_seconds, extrapolated, pixels = _time_brute_force(scene, camera, lights, image_size, rng, remote)
+        rows.append(GridVsNoneRow(n, build_seconds, render_seconds, none_seconds, extrapolated, pixels,
+                                  remote is not None))
         if progress is not None:
             progress(index + 1, len(sizes))
     return rows
@@ -108,8 +121,10 @@ def write_report(rows: list[GridVsNoneRow], out_dir, image_size: int) -> tuple[P
     ]
     for row in rows:
         mark = "*" if row.none_extrapolated else ""
-        lines.append(f"| {row.n:,} | {row.grid_seconds:.3f} | {row.grid_build_seconds:.3f} | "
+        lines.append(f"| {row.n:,}{' (D)' if row.on_cluster else ''} | {row.grid_seconds:.3f} | {row.grid_build_seconds:.3f} | "
                      f"{row.none_seconds:,.2f}{mark} | {row.speedup:,.{1 if row.speedup < 10 else 0}f}{mark} |")
+    if any(row.on_cluster for row in rows):
+        lines += ["", "(D): rendered in tiles on a Dask cluster; wall-clock seconds, sending the structures included."]
     if len(rows) >= 2:
         lines += ["", f"Grid time grows by {rows[-1].grid_seconds / rows[0].grid_seconds:.2f}x from "
                       f"n = {rows[0].n:,} to n = {rows[-1].n:,}."]

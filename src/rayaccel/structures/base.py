@@ -71,6 +71,11 @@ def store_hit(i, t, prim, u, v, out_t, out_prim, out_u, out_v):
         out_v[i] = v
 
 
+def _any_dask(*values) -> bool:
+    """Whether any value is a Dask collection, decided without importing Dask."""
+    return any(type(value).__module__.split(".")[0] == "dask" for value in values)
+
+
 class Accelerator:
     """A built acceleration structure over a scene.
 
@@ -110,7 +115,15 @@ class Accelerator:
             Trace a batch of ``ray_order.MIN_RAYS`` rays or more in a coherent
             order (:mod:`rayaccel.ray_order`); the results are in the given order
             either way. ``False`` traces the rays in the given order.
+
+        Any input a ``dask.array`` makes every field of the result a lazy Dask array
+        chunked as the rays (:func:`rayaccel.distributed.intersect`).
         """
+        if _any_dask(origins, directions, t_min, t_max):
+            from ..distributed import intersect
+
+            return intersect(self, origins, directions, t_min, t_max, any_hit=any_hit, counters=counters,
+                             reorder=reorder)
         rays, t, prim, u, v, work = self._cast(origins, directions, t_min, t_max, bool(any_hit), counters, reorder,
                                                coordinates=True)
         if self.scene.kind == SPHERE:
@@ -119,7 +132,12 @@ class Accelerator:
         return Hits(t, prim, u, v, ray_counters, np.minimum(prim, 0))
 
     def occluded(self, origins, directions, t_min=0.0, t_max=np.inf, *, reorder=True) -> np.ndarray:
-        """(n,) bool: whether anything lies on each ray within ``[t_min, t_max]``."""
+        """(n,) bool: whether anything lies on each ray within ``[t_min, t_max]``; a lazy Dask
+        array when any input is one (:func:`rayaccel.distributed.occluded`)."""
+        if _any_dask(origins, directions, t_min, t_max):
+            from ..distributed import occluded
+
+            return occluded(self, origins, directions, t_min, t_max, reorder=reorder)
         prim = self._cast(origins, directions, t_min, t_max, True, False, reorder)[2]
         return prim >= 0
 

@@ -34,6 +34,13 @@ class MailboxPool:
         """Memory of one mailbox, which every query reads: a stamp per primitive and thread."""
         return numba.config.NUMBA_NUM_THREADS * self.n_prims * 8 if self.enabled else 0
 
+    def __getstate__(self) -> dict:
+        """Pickle the pool's settings only: the lock cannot travel, and the mailboxes are scratch space."""
+        return {"n_prims": self.n_prims, "enabled": self.enabled}
+
+    def __setstate__(self, state: dict) -> None:
+        self.__init__(state["n_prims"], state["enabled"])
+
     @contextlib.contextmanager
     def lend(self, n_rays: int):
         """Yield ``(mailbox, base)``: a mailbox no other call is using (empty when
