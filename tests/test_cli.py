@@ -39,7 +39,8 @@ def test_demo(tmp_path, capsys):
 
 
 def test_experiment(tmp_path, capsys):
-    assert main(["--quiet", "experiment", "grid-vs-none", "--max-n", "1000", "--size", "24", "--out", str(tmp_path)]) == 0
+    assert main(["--quiet", "experiment", "grid-vs-none", "--max-n", "1000", "--size", "24",
+                 "--out", str(tmp_path)]) == 0
     table = (tmp_path / "grid-vs-none.md").read_text()
     assert "| 1,000 |" in table and "| 10 |" in table
     assert (tmp_path / "grid-vs-none.png").exists()
@@ -61,7 +62,8 @@ def test_errors_are_one_line(tmp_path, capsys):
 
 
 def test_bvh_experiment(tmp_path):
-    assert main(["--quiet", "experiment", "bvh", "--scenes", "spheres:300", "--size", "16", "--out", str(tmp_path)]) == 0
+    assert main(["--quiet", "experiment", "bvh", "--scenes", "spheres:300", "--size", "16",
+                 "--out", str(tmp_path)]) == 0
     table = (tmp_path / "bvh.md").read_text()
     for method in ("bvh-agglomerative", "bvh-median-space", "bvh-median-object", "bvh-sah", "bvh-binned", "bvh-lbvh"):
         assert method in table

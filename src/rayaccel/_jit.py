@@ -33,8 +33,8 @@ from numba import types
 from numba.core import cgutils
 from numba.extending import intrinsic
 
-__all__ = ["kernel", "inline_kernel", "parallel_kernel", "set_threads", "thread_count", "max_threads", "thread_id", "prefetch",
-           "unsigned"]
+__all__ = ["kernel", "inline_kernel", "parallel_kernel", "set_threads", "thread_count", "max_threads", "thread_id",
+           "prefetch", "unsigned"]
 
 _COMMON = dict(cache=True, nogil=True, error_model="numpy", fastmath=False)
 

@@ -3,10 +3,9 @@ array that reaches one is validated and converted here, once."""
 
 from __future__ import annotations
 
-import numpy as np
-
 import math
 
+import numpy as np
 from numba import prange
 
 from ._jit import kernel, parallel_kernel

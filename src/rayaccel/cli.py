@@ -136,7 +136,8 @@ def _write_images(result, out: Path, heatmap: str | None, title: str) -> list[Pa
 
     written = [save_png(result.image, out)]
     if heatmap in ("nodes", "both"):
-        written.append(save_heatmap(result.nodes, out.with_name(out.stem + "-nodes.png"), "nodes or cells visited", title))
+        written.append(save_heatmap(result.nodes, out.with_name(out.stem + "-nodes.png"), "nodes or cells visited",
+                                    title))
     if heatmap in ("tests", "both"):
         written.append(save_heatmap(result.tests, out.with_name(out.stem + "-tests.png"), "primitive tests", title))
     return written
@@ -172,7 +173,10 @@ def _stats_table(rows: list[dict], title: str):
         cells = []
         for row in rows:
             value = row.get(key, "")
-            cells.append(f"{value:,.4g}" if isinstance(value, float) else f"{value:,}" if isinstance(value, int) else str(value))
+            if isinstance(value, float):
+                cells.append(f"{value:,.4g}")
+            else:
+                cells.append(f"{value:,}" if isinstance(value, int) else str(value))
         table.add_row(key, *cells)
     return table
 
@@ -306,7 +310,8 @@ def _cmd_calibrate(args) -> None:
 
     for name, kind in (("triangle", TRIANGLE), ("sphere", SPHERE)):
         entry = calibration(kind, refresh=True)
-        print(f"{name}: C_i = {entry['intersection_seconds'] * 1e9:.2f} ns, C_c = {entry['cell_step_seconds'] * 1e9:.2f} ns, "
+        print(f"{name}: C_i = {entry['intersection_seconds'] * 1e9:.2f} ns, "
+              f"C_c = {entry['cell_step_seconds'] * 1e9:.2f} ns, "
               f"per-ray set-up {entry['ray_setup_seconds'] * 1e9:.1f} ns; C_i / C_c = {entry['ratio']:.2f} "
               f"+- {entry['uncertainty']:.1%} ({entry['source']}, {entry['attempts']} attempt(s))  ->  "
               f"cost-model grid has {2 * entry['ratio']:.1f} cells per primitive")

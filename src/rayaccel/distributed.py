@@ -32,7 +32,7 @@ import numpy as np
 
 from ._jit import max_threads, set_threads, thread_count
 from .rays import Hits, RayCounters
-from .render import RenderResult, _BAND_ROWS, assemble, default_camera, default_lights, render_pixels
+from .render import _BAND_ROWS, RenderResult, assemble, default_camera, default_lights, render_pixels
 
 __all__ = ["is_dask_array", "intersect", "occluded", "ship", "connect", "render"]
 

@@ -14,9 +14,9 @@ from pathlib import Path
 
 import numpy as np
 
+from .catalog import load_scene
 from .instances import Scene
 from .rays import Camera
-from .catalog import load_scene
 from .scene import SPHERE, TRIANGLE
 from .structures.base import Accelerator
 

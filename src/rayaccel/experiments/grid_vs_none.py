@@ -121,7 +121,8 @@ def write_report(rows: list[GridVsNoneRow], out_dir, image_size: int) -> tuple[P
     ]
     for row in rows:
         mark = "*" if row.none_extrapolated else ""
-        lines.append(f"| {row.n:,}{' (D)' if row.on_cluster else ''} | {row.grid_seconds:.3f} | {row.grid_build_seconds:.3f} | "
+        cluster = " (D)" if row.on_cluster else ""
+        lines.append(f"| {row.n:,}{cluster} | {row.grid_seconds:.3f} | {row.grid_build_seconds:.3f} | "
                      f"{row.none_seconds:,.2f}{mark} | {row.speedup:,.{1 if row.speedup < 10 else 0}f}{mark} |")
     if any(row.on_cluster for row in rows):
         lines += ["", "(D): rendered in tiles on a Dask cluster; wall-clock seconds, sending the structures included."]
