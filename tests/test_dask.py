@@ -26,7 +26,7 @@ from conftest import random_rays
 
 @pytest.fixture(scope="session")
 def cluster():
-    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as local, \
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0") as local, \
             Client(local, set_as_default=False) as client:
         yield local, client
 
@@ -123,8 +123,12 @@ def test_single_origin_and_per_ray_limits_as_numpy(spheres):
     _, directions = random_rays(spheres, 3000, seed=2)
     origin = np.array([0.5, 0.5, 0.5])
     t_min = np.full(3000, 0.01)
-    got = accel.occluded(origin, da.from_array(directions, chunks=1000), t_min, 0.3).compute(scheduler="sync")
-    same_bits(got, accel.occluded(origin, directions, t_min, 0.3))
+    want = accel.occluded(origin, directions, t_min, 0.3)
+    got = accel.occluded(origin, da.from_array(directions, chunks=1000), t_min, 0.3)
+    assert got.chunks == ((1000, 1000, 1000),)
+    same_bits(got.compute(scheduler="sync"), want)
+    same_bits(accel.occluded(da.from_array(origin[None]), directions, da.from_array(t_min)).compute(scheduler="sync"),
+              accel.occluded(origin, directions, t_min))
 
 
 def test_dask_input_errors(spheres):
@@ -136,6 +140,10 @@ def test_dask_input_errors(spheres):
         accel.intersect(np.zeros((10, 3)), directions, 0.0, np.ones(7))
     with pytest.raises(ValueError, match=r"\(n, 3\)"):
         accel.occluded(np.zeros((10, 3)), da.ones((10, 2), chunks=5))
+    with pytest.raises(ValueError, match="unknown chunk sizes"):
+        accel.intersect(directions[directions[:, 0] > 0], directions[directions[:, 0] > 0])
+    with pytest.raises(ValueError, match="kernel_threads"):
+        rd.intersect(accel, directions, directions, kernel_threads=0)
     with pytest.raises(ImportError, match=r'pip install "rayaccel\[dask\]"'):
         rd._require("dask_module_that_does_not_exist")
 
