@@ -224,3 +224,13 @@ def test_restart_ships_the_structure_again(client, spheres):
     hits = accel.intersect(da.from_array(origins, chunks=500), directions)
     assert rd.ship(accel) is not first
     same_bits(hits.prim.compute(), accel.intersect(origins, directions).prim)
+
+
+def test_grid_vs_none_renders_its_big_rows_on_the_cluster(client, tmp_path):
+    from rayaccel.experiments import grid_vs_none
+
+    rows = grid_vs_none.run((10, 1000), image_size=24, client=client, distribute_from=1000)
+    assert [row.on_cluster for row in rows] == [False, True]
+    table, _ = grid_vs_none.write_report(rows, tmp_path, 24)
+    assert "| 1,000 (D) |" in table.read_text() and "Dask cluster" in table.read_text()
+    assert main(["--quiet", "experiment", "bvh", "--workers", "2", "--out", str(tmp_path)]) == 2
