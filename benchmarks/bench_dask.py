@@ -22,7 +22,9 @@ scattering the structure to the workers.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import logging
+import os
 import pickle
 import statistics
 import time
@@ -68,13 +70,39 @@ def timed_query(accel, origins, directions, kernel_threads, scheduler=None):
     return seconds, int((kept[1] >= 0).sum().compute(scheduler=scheduler))
 
 
+def task_overhead(accel, origins, directions, client=None, rays=2 ** 18, small=256, rounds=3):
+    """Seconds of wall time per task: the same rays traced as given (no reordering, so that the chunk size
+    does not change the tracing) in chunks of ``small`` rays and in one chunk per thread, compared."""
+    scheduler = None if client is not None else "threads"
+    threads = sum(client.nthreads().values()) if client is not None else 2
+    timings = {small: [], rays // threads: []}
+    for _ in range(rounds):
+        for chunk in timings:
+            o = da.from_array(origins[:rays], chunks=(chunk, 3))
+            d = da.from_array(directions[:rays], chunks=(chunk, 3))
+            if client is not None:
+                o, d = client.persist([o, d])
+                wait([o, d])
+            hits = rd.intersect(accel, o, d, reorder=False)
+            start = time.perf_counter()
+            kept = dask.persist(hits.t, hits.prim, hits.u, hits.v, scheduler=scheduler)
+            if client is not None:
+                wait(kept)
+            timings[chunk].append(time.perf_counter() - start)
+    small_s, large_s = (statistics.median(v) for v in timings.values())
+    return (small_s - large_s) / (rays // small - threads), small_s, large_s
+
+
 def main():
     parser = argparse.ArgumentParser()
     parser.add_argument("--rays", type=int, default=16_777_216)
     parser.add_argument("--rounds", type=int, default=3)
     parser.add_argument("--chunks", type=int, nargs="+", default=[2 ** 16, 2 ** 18, 2 ** 20, 2 ** 22])
     parser.add_argument("--scene", default="dragon")
+    parser.add_argument("--overhead-only", action="store_true", help="only the per-task overhead")
     args = parser.parse_args()
+    logging.getLogger("distributed").setLevel(logging.ERROR)
+    print(f"load average before: {os.getloadavg()[0]:.1f}", flush=True)
     n = args.rays // BLOCK * BLOCK
     chunks = [c for c in args.chunks if c % BLOCK == 0 and c <= n]
     scene = ra.load_scene(args.scene)
@@ -90,7 +118,7 @@ def main():
     clusters = {}
     for label, workers, threads in (("2x1", 2, 1), ("1x2", 1, 2)):
         cluster = LocalCluster(n_workers=workers, threads_per_worker=threads, processes=True,
-                               dashboard_address=None, silence_logs=logging.ERROR)
+                               dashboard_address=":0", silence_logs=logging.ERROR)
         client = Client(cluster, set_as_default=False)
         start = time.perf_counter()
         rd.ship(accel, client)
@@ -101,12 +129,21 @@ def main():
         clusters[label] = (cluster, client, send)
         print(f"{label}: structure scattered to {workers} worker(s) in {send:.2f} s (one-off)")
 
+    for label, client in [("threads", None)] + [(k, v[1]) for k, v in clusters.items()]:
+        context = client.as_current() if client is not None else contextlib.nullcontext()
+        with context:
+            per_task, small_s, large_s = task_overhead(accel, origins, directions, client)
+        print(f"{label}: {per_task * 1e3:.2f} ms of wall time per task (2^18 rays in 1,024 tasks {small_s:.2f} s, "
+              f"in one per thread {large_s:.2f} s; 5 tasks per chunk: the query, then t, prim, u, v)", flush=True)
+    if args.overhead_only:
+        return
     times = {}
 
     def record(key, seconds, n_hits):
         nonlocal reference_hits
         times.setdefault(key, []).append(seconds)
-        if reference_hits is not None and n_hits != reference_hits:
+        print(f"  {key}: {seconds:.2f} s", flush=True)
+        if reference_hits is not None and n_hits is not None and n_hits != reference_hits:
             raise AssertionError(f"{key}: {n_hits} hits, local {reference_hits}")
 
     for round_ in range(args.rounds):
@@ -147,6 +184,7 @@ def main():
         best = chunks[int(np.argmin(seconds))]
         print(f"{label}: best {best:,} rays per task; wall time = {intercept:.2f} s + {slope * 1e3:.2f} ms per task "
               f"(fit over {len(chunks)} chunk sizes)")
+    print(f"load average after: {os.getloadavg()[0]:.1f}")
     for label, (cluster, client, send) in clusters.items():
         client.close()
         cluster.close()

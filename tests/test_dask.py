@@ -25,7 +25,7 @@ from rayaccel.render import render, save_png
 
 @pytest.fixture(scope="session")
 def cluster():
-    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as local, \
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0") as local, \
             Client(local, set_as_default=False) as client:
         yield local, client
 
@@ -122,8 +122,12 @@ def test_single_origin_and_per_ray_limits_as_numpy(spheres):
     _, directions = random_rays(spheres, 3000, seed=2)
     origin = np.array([0.5, 0.5, 0.5])
     t_min = np.full(3000, 0.01)
-    got = accel.occluded(origin, da.from_array(directions, chunks=1000), t_min, 0.3).compute(scheduler="sync")
-    same_bits(got, accel.occluded(origin, directions, t_min, 0.3))
+    want = accel.occluded(origin, directions, t_min, 0.3)
+    got = accel.occluded(origin, da.from_array(directions, chunks=1000), t_min, 0.3)
+    assert got.chunks == ((1000, 1000, 1000),)
+    same_bits(got.compute(scheduler="sync"), want)
+    same_bits(accel.occluded(da.from_array(origin[None]), directions, da.from_array(t_min)).compute(scheduler="sync"),
+              accel.occluded(origin, directions, t_min))
 
 
 def test_dask_input_errors(spheres):
@@ -135,6 +139,10 @@ def test_dask_input_errors(spheres):
         accel.intersect(np.zeros((10, 3)), directions, 0.0, np.ones(7))
     with pytest.raises(ValueError, match=r"\(n, 3\)"):
         accel.occluded(np.zeros((10, 3)), da.ones((10, 2), chunks=5))
+    with pytest.raises(ValueError, match="unknown chunk sizes"):
+        accel.intersect(directions[directions[:, 0] > 0], directions[directions[:, 0] > 0])
+    with pytest.raises(ValueError, match="kernel_threads"):
+        rd.intersect(accel, directions, directions, kernel_threads=0)
     with pytest.raises(ImportError, match=r'pip install "rayaccel\[dask\]"'):
         rd._require("dask_module_that_does_not_exist")
 
@@ -216,3 +224,13 @@ def test_restart_ships_the_structure_again(client, spheres):
     hits = accel.intersect(da.from_array(origins, chunks=500), directions)
     assert rd.ship(accel) is not first
     same_bits(hits.prim.compute(), accel.intersect(origins, directions).prim)
+
+
+def test_grid_vs_none_renders_its_big_rows_on_the_cluster(client, tmp_path):
+    from rayaccel.experiments import grid_vs_none
+
+    rows = grid_vs_none.run((10, 1000), image_size=24, client=client, distribute_from=1000)
+    assert [row.on_cluster for row in rows] == [False, True]
+    table, _ = grid_vs_none.write_report(rows, tmp_path, 24)
+    assert "| 1,000 (D) |" in table.read_text() and "Dask cluster" in table.read_text()
+    assert main(["--quiet", "experiment", "bvh", "--workers", "2", "--out", str(tmp_path)]) == 2

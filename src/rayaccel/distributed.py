@@ -139,7 +139,6 @@ def _unknown(chunks) -> bool:
 def _rays(da, origins, directions):
     """Origins and directions as (n, 3) Dask arrays chunked alike along the rays, one chunk across."""
     inputs = {"origins": origins, "directions": directions}
-    reference = next((inputs[k] for k in ("directions", "origins") if is_dask_array(inputs[k])), None)
     arrays = {}
     for name, value in inputs.items():
         array = value if is_dask_array(value) else np.asarray(value)
@@ -155,12 +154,10 @@ def _rays(da, origins, directions):
         arrays[name] = array
     origins, directions = arrays["origins"], arrays["directions"]
     n = directions.shape[0]
-    if origins.shape[0] == 1 and n != 1:
-        origins = da.broadcast_to(origins, (n, 3)) if is_dask_array(origins) else np.broadcast_to(origins, (n, 3))
-    if origins.shape[0] != n:
+    if origins.shape[0] != n and origins.shape[0] != 1:
         raise ValueError(f"origins {origins.shape} and directions {directions.shape} must have the same shape")
-    rows = reference.chunks[0] if reference is not None else None
-    return origins, directions, rows
+    reference = [a for a in (directions, origins) if is_dask_array(a) and a.shape[0] == n]
+    return origins, directions, reference[0].chunks[0] if reference else None
 
 
 def _per_ray(da, name, value, n, rows):
@@ -183,18 +180,24 @@ def _per_ray(da, name, value, n, rows):
 def _chunked(da, array, chunks):
     if is_dask_array(array):
         if _unknown(array.chunks[0]):
-            raise ValueError("per-ray limits have unknown chunk sizes; call compute_chunk_sizes() first")
+            raise ValueError("an input has unknown chunk sizes; call its compute_chunk_sizes() first")
         return array.rechunk(chunks)
     return da.from_array(np.ascontiguousarray(array), chunks=chunks)
 
 
 def _query(accel, query, origins, directions, t_min, t_max, options, kernel_threads):
     da = _require("dask.array")
+    if not (kernel_threads is None or kernel_threads == "match"
+            or (isinstance(kernel_threads, (int, np.integer)) and not isinstance(kernel_threads, bool)
+                and kernel_threads >= 1)):
+        raise ValueError(f'kernel_threads must be "match", None or a count of at least 1, got {kernel_threads!r}')
     origins, directions, rows = _rays(da, origins, directions)
     n = directions.shape[0]
     if rows is None:
         limits = [v for v in (t_min, t_max) if is_dask_array(v) and v.ndim == 1]
         rows = limits[0].chunks[0] if limits else da.core.normalize_chunks("auto", (n,), dtype=np.float64)[0]
+    if origins.shape[0] == 1 and n != 1:
+        origins = da.broadcast_to(da.asarray(origins), (n, 3), chunks=(rows, (3,)))
     origins = _chunked(da, origins, (rows, (3,)))
     directions = _chunked(da, directions, (rows, (3,)))
     t_min, min_index = _per_ray(da, "t_min", t_min, n, rows)
@@ -256,7 +259,7 @@ def connect(workers: int | None = None, scheduler: str | None = None, threads_pe
     import logging
 
     with distributed.LocalCluster(n_workers=workers, threads_per_worker=threads, processes=True,
-                                  dashboard_address=None, silence_logs=logging.ERROR) as cluster, \
+                                  dashboard_address=":0", silence_logs=logging.ERROR) as cluster, \
             distributed.Client(cluster) as client:
         yield client
 
