@@ -157,7 +157,7 @@ def main():
             modes = ["match", None] if chunk == chunks[-1] else ["match"]
             for mode in modes:
                 record(("threads", chunk, mode), *timed_query(accel, do, dd, mode, scheduler="threads"))
-            for label, (cluster, client, _) in clusters.items():
+            for label, (_, client, _) in clusters.items():
                 with client.as_current():
                     co, cd = dask.persist(*dask_rays(lo, hi, 0, n, chunk))
                     wait([co, cd])
@@ -185,7 +185,7 @@ def main():
         print(f"{label}: best {best:,} rays per task; wall time = {intercept:.2f} s + {slope * 1e3:.2f} ms per task "
               f"(fit over {len(chunks)} chunk sizes)")
     print(f"load average after: {os.getloadavg()[0]:.1f}")
-    for label, (cluster, client, send) in clusters.items():
+    for cluster, client, _ in clusters.values():
         client.close()
         cluster.close()
     del warm
