@@ -117,6 +117,25 @@ def test_threaded_scheduler_without_a_client(spheres):
     same_bits(prim, want.prim)
 
 
+def test_scene_of_instances_on_the_cluster(client, bunny, spheres):
+    scene = ra.Scene()
+    scene.add(bunny)
+    moved = np.eye(4)
+    moved[:3, 3] = [0.3, 0.0, 0.0]
+    scene.add(bunny, transform=moved)
+    scene.add(spheres)
+    accel = ra.build(scene, "bvh-binned")
+    origins, directions = random_rays(bunny, 4000, seed=4)
+    hits = accel.intersect(da.from_array(origins, chunks=1500), da.from_array(directions, chunks=1500))
+    t, prim, geom = dask.compute(hits.t, hits.prim, hits.geom)
+    want = accel.intersect(origins, directions)
+    assert (want.prim >= 0).any() and len(set(want.geom.tolist())) > 2
+    for got, expected in ((t, want.t), (prim, want.prim), (geom, want.geom)):
+        same_bits(got, expected)
+    same_bits(accel.occluded(da.from_array(origins, chunks=1500), directions).compute(),
+              accel.occluded(origins, directions))
+
+
 def test_single_origin_and_per_ray_limits_as_numpy(spheres):
     accel = ra.build(spheres, "bvh-binned")
     _, directions = random_rays(spheres, 3000, seed=2)

@@ -124,7 +124,11 @@ class Accelerator:
 
             return intersect(self, origins, directions, t_min, t_max, any_hit=any_hit, counters=counters,
                              reorder=reorder)
-        rays, t, prim, u, v, work = self._cast(origins, directions, t_min, t_max, bool(any_hit), counters, reorder,
+        return self._intersect(origins, directions, t_min, t_max, bool(any_hit), counters, reorder)
+
+    def _intersect(self, origins, directions, t_min, t_max, any_hit, counters, reorder) -> Hits:
+        """:meth:`intersect` on array inputs (scenes of instances override it)."""
+        rays, t, prim, u, v, work = self._cast(origins, directions, t_min, t_max, any_hit, counters, reorder,
                                                coordinates=True)
         if self.scene.kind == SPHERE:
             sphere_hit_coords(self.scene.geometry, rays.origins, rays.directions, t, prim, u, v)
@@ -138,8 +142,11 @@ class Accelerator:
             from ..distributed import occluded
 
             return occluded(self, origins, directions, t_min, t_max, reorder=reorder)
-        prim = self._cast(origins, directions, t_min, t_max, True, False, reorder)[2]
-        return prim >= 0
+        return self._occluded(origins, directions, t_min, t_max, reorder)
+
+    def _occluded(self, origins, directions, t_min, t_max, reorder) -> np.ndarray:
+        """:meth:`occluded` on array inputs (scenes of instances override it)."""
+        return self._cast(origins, directions, t_min, t_max, True, False, reorder)[2] >= 0
 
     def save(self, path) -> None:
         """Write the built structure, its scene and options to one file (:mod:`rayaccel.persist`);

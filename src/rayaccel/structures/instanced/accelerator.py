@@ -95,12 +95,11 @@ class InstancedScene(Accelerator):
         refit_boxes(first, count, self.world_lo[order], self.world_hi[order], box)
         self.refit_seconds = time.perf_counter() - start
 
-    def intersect(self, origins, directions, t_min=0.0, t_max=np.inf, *, any_hit=False, counters=False,
-                  reorder=True) -> Hits:
-        """As :meth:`Accelerator.intersect`, with ``hits.geom`` the instance hit."""
-        return self._trace_scene(origins, directions, t_min, t_max, bool(any_hit), counters, reorder)
+    def _intersect(self, origins, directions, t_min, t_max, any_hit, counters, reorder) -> Hits:
+        """The two-level walk behind :meth:`Accelerator.intersect`; ``hits.geom`` is the instance hit."""
+        return self._trace_scene(origins, directions, t_min, t_max, any_hit, counters, reorder)
 
-    def occluded(self, origins, directions, t_min=0.0, t_max=np.inf, *, reorder=True) -> np.ndarray:
+    def _occluded(self, origins, directions, t_min, t_max, reorder) -> np.ndarray:
         return self._trace_scene(origins, directions, t_min, t_max, True, False, reorder).prim >= 0
 
     def _trace_scene(self, origins, directions, t_min, t_max, any_hit, counters, reorder) -> Hits:
