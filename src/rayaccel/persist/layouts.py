@@ -92,14 +92,20 @@ def _save_grid(accel):
     return {}, _named(accel.grid, "grid")
 
 
-def _load_grid(accel, meta, arrays):
-    lo, hi = _box3(arrays, "grid")
-    res = _cells(arrays, "grid", (3,))
+def _uniform_cells(arrays, prefix, n_prims, what):
+    """The checked uniform-grid part of a grid or grid-bvh: box, cells per axis, cell size and
+    references, ``(lo, hi, res, cell_size, cell_first, cell_prims)``."""
+    lo, hi = _box3(arrays, prefix)
+    res = _cells(arrays, prefix, (3,))
     n_cells = int(np.prod(res))
-    c.require(n_cells <= 1 << 27, "grid has more than 2**27 cells")
-    cell_size = _positive("grid.cell_size", c.array(arrays, "grid.cell_size", np.float64, (3,)))
-    first, prims = _references(arrays, "grid", n_cells, len(accel.scene), np.int32)
-    accel.grid = GridArrays(lo, hi, res, cell_size, first, prims)
+    c.require(n_cells <= 1 << 27, f"{what} has more than 2**27 cells")
+    cell_size = _positive(f"{prefix}.cell_size", c.array(arrays, f"{prefix}.cell_size", np.float64, (3,)))
+    first, prims = _references(arrays, prefix, n_cells, n_prims, np.int32)
+    return lo, hi, res, cell_size, first, prims
+
+
+def _load_grid(accel, meta, arrays):
+    accel.grid = GridArrays(*_uniform_cells(arrays, "grid", len(accel.scene), "grid"))
     _mailbox(accel)
 
 
@@ -193,12 +199,8 @@ def _save_hybrid(accel):
 
 
 def _load_hybrid(accel, meta, arrays):
-    lo, hi = _box3(arrays, "hybrid")
-    res = _cells(arrays, "hybrid", (3,))
+    lo, hi, res, size, first, prims = _uniform_cells(arrays, "hybrid", len(accel.scene), "hybrid grid")
     n_cells = int(np.prod(res))
-    c.require(n_cells <= 1 << 27, "hybrid grid has more than 2**27 cells")
-    size = _positive("hybrid.cell_size", c.array(arrays, "hybrid.cell_size", np.float64, (3,)))
-    first, prims = _references(arrays, "hybrid", n_cells, len(accel.scene), np.int32)
     root = c.array(arrays, "hybrid.cell_root", np.int32, (n_cells,))
     node_box = c.finite("hybrid.node_box", c.array(arrays, "hybrid.node_box", np.float64, (None, 6)))
     n_nodes = len(node_box)
