@@ -143,6 +143,20 @@ def _load_hgrid(accel, meta, arrays):
 
 # --- binary trees shared by the BVH and the grid-BVH hybrid --------------------------------
 
+def binary_tree(arrays, prefix, what, name, n_prims):
+    """The checked binary BVH saved under ``prefix`` (boxes, child links, leaf ranges and a
+    permutation of the ``n_prims`` primitives), ``what`` and ``name`` naming it in errors:
+    ``(node_box, node_first, node_count, prim_order, node_depths)``."""
+    box = c.boxes(f"{prefix}.node_box", c.array(arrays, f"{prefix}.node_box", np.float64, (None, 6)))
+    n = len(box)
+    c.require(n >= 1, f"{what} has no node")
+    first = c.array(arrays, f"{prefix}.node_first", np.int32, (n,))
+    count = c.array(arrays, f"{prefix}.node_count", np.int32, (n,))
+    order = c.permutation(f"{prefix}.prim_order", c.array(arrays, f"{prefix}.prim_order", np.int64, (None,)),
+                          n_prims)
+    return box, first, count, order, tree_checks(name, first, count, n_prims, (0,))
+
+
 def tree_checks(name, node_first, node_count, n_refs, roots):
     """Inner nodes (count 0) link forward to two children; leaves (count >= 1) hold a range
     of ``n_refs`` references. Returns the depth of every node below the ``roots``."""
@@ -176,13 +190,7 @@ def _load_bvh(accel, meta, arrays):
     pad = meta.get("pad")
     c.require(isinstance(pad, float) and np.isfinite(pad) and pad >= 0, "pad must be a finite float >= 0")
     n_prims = len(accel.scene)
-    box = c.boxes("bvh.node_box", c.array(arrays, "bvh.node_box", np.float64, (None, 6)))
-    n = len(box)
-    c.require(n >= 1, "the BVH has no node")
-    first = c.array(arrays, "bvh.node_first", np.int32, (n,))
-    count = c.array(arrays, "bvh.node_count", np.int32, (n,))
-    order = c.permutation("bvh.prim_order", c.array(arrays, "bvh.prim_order", np.int64, (None,)), n_prims)
-    depth = tree_checks("bvh", first, count, n_prims, (0,))
+    box, first, count, order, depth = binary_tree(arrays, "bvh", "the BVH", "bvh", n_prims)
     if "sah_cost_at_build" in meta:
         c.require(isinstance(meta["sah_cost_at_build"], float), "sah_cost_at_build must be a float")
         accel.sah_cost_at_build = meta["sah_cost_at_build"]

@@ -17,7 +17,7 @@ from ..structures.base import Accelerator
 from ..structures.instanced.accelerator import InstancedScene
 from ..structures.registry import build_class, methods
 from . import checks as c
-from .layouts import layout_of, tree_checks
+from .layouts import binary_tree, layout_of
 
 __all__ = ["describe", "rebuild"]
 
@@ -133,13 +133,7 @@ def _rebuild_scene(state, arrays, prefix):
             scene.add(objects[o].scene, as_transform(matrix))
     except ValueError as exc:
         raise c.CorruptFileError(f"a saved instance transform is invalid: {exc}") from None
-    box = c.boxes("top.node_box", c.array(scoped, "top.node_box", np.float64, (None, 6)))
-    m = len(box)
-    c.require(m >= 1, "the top level has no node")
-    first = c.array(scoped, "top.node_first", np.int32, (m,))
-    count = c.array(scoped, "top.node_count", np.int32, (m,))
-    order = c.permutation("top.prim_order", c.array(scoped, "top.prim_order", np.int64, (None,)), n)
-    depth = tree_checks("top level", first, count, n, (0,))
+    box, first, count, order, depth = binary_tree(scoped, "top", "the top level", "top level", n)
     accel = InstancedScene.__new__(InstancedScene)
     Accelerator.__init__(accel, scene, state["options"])
     accel.method = method

@@ -13,9 +13,9 @@ vectoriser, which would merge them, is off in Numba by default
 (``NUMBA_SLP_VECTORIZE=0``), and a library must not switch it on for its
 users' code. :func:`enter_children` therefore emits the vector IR itself: per
 axis, two loads of four float32 components, widened to four float64 lanes,
-then subtract, multiply and select on all four children at once (AVX2:
-``vcvtps2pd``, ``vsubpd``, ``vmulpd``, ``vcmppd``, ``vblendvpd`` on ``ymm``
-registers). The arithmetic is exactly the scalar test's, lane by lane, in
+then subtract, multiply and select on all four children at once (on AVX2, as
+``inspect_asm()`` shows: ``vcvtps2pd``, ``vsubpd``, ``vmulpd``, ``vmaxpd`` and
+``vminpd`` on ``ymm`` registers, and one ``vblendvpd`` for the misses). The arithmetic is exactly the scalar test's, lane by lane, in
 float64, so it culls exactly the same nodes.
 """
 
