@@ -15,8 +15,9 @@ users' code. :func:`enter_children` therefore emits the vector IR itself: per
 axis, two loads of four float32 components, widened to four float64 lanes,
 then subtract, multiply and select on all four children at once (on AVX2, as
 ``inspect_asm()`` shows: ``vcvtps2pd``, ``vsubpd``, ``vmulpd``, ``vmaxpd`` and
-``vminpd`` on ``ymm`` registers, and one ``vblendvpd`` for the misses). The arithmetic is exactly the scalar test's, lane by lane, in
-float64, so it culls exactly the same nodes.
+``vminpd`` on ``ymm`` registers, and one ``vblendvpd`` for the misses). The
+arithmetic is exactly the scalar test's, lane by lane, in float64, so it culls
+exactly the same nodes.
 """
 
 from __future__ import annotations
