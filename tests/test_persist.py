@@ -133,7 +133,21 @@ def _crafts(arrays):
         "short count array": lambda a: {**a, "bvh.node_count": a["bvh.node_count"][:-1].copy()},
         "missing array": lambda a: {k: v for k, v in a.items() if k != "bvh.prim_order"},
         "object array": replaced("bvh.prim_order", np.array([1, "x"], dtype=object)),
+        "wide slot out of range": changed("bvh.wide_slots", lambda s: s.__setitem__((1, 1), n_nodes)),
+        "wide node without children": changed("bvh.wide_slots", lambda s: s.__setitem__((0, 0), -1)),
+        "wide child before parent": changed("bvh.wide_children", lambda c: c.__setitem__(_wide_inner(arrays, 3),
+                                                                                          0)),
+        "wide node with two parents": changed("bvh.wide_children", lambda c: c.__setitem__(
+            _wide_inner(arrays, 4), c[_wide_inner(arrays, 5)])),
+        "wide children missing": lambda a: {k: v for k, v in a.items() if k != "bvh.wide_children"},
     }
+
+
+def _wide_inner(arrays, k):
+    """The ``k``-th slot of the four-wide collapse that holds an inner binary node."""
+    slots = arrays["bvh.wide_slots"]
+    inner = np.argwhere((slots >= 0) & (arrays["bvh.node_count"][np.maximum(slots, 0)] == 0))
+    return tuple(inner[k])
 
 
 @pytest.mark.parametrize("craft", list(_crafts({"bvh.node_first": np.zeros(9, np.int32),
@@ -144,6 +158,16 @@ def test_crafted_files_are_refused(craft, saved, tmp_path):
     _write(path, header, _crafts(arrays)[craft](arrays))
     with pytest.raises(CorruptFileError):
         ra.load_accelerator(path)
+
+
+def test_a_file_without_the_wide_collapse_derives_it(saved, small_dragon, tmp_path):
+    header, arrays = _read(saved)
+    path = tmp_path / "derived.npz"
+    _write(path, header, {k: v for k, v in arrays.items() if not k.startswith("bvh.wide_")})
+    (tmp_path / "saved.npz").write_bytes(saved)
+    origins, directions = random_rays(small_dragon, 500, seed=3)
+    _assert_identical(ra.load_accelerator(path).intersect(origins, directions),
+                      ra.load_accelerator(tmp_path / "saved.npz").intersect(origins, directions))
 
 
 @pytest.mark.parametrize("edit", ["version", "format", "method", "bounds", "pad"])

@@ -12,7 +12,11 @@ class (and its subclasses):
 
 Only canonical arrays are stored: derived layouts (the BVH's packed and
 four-wide records, the sorted geometry) are rebuilt on load, so a file stays
-valid when a traversal layout changes.
+valid when a traversal layout changes. One derived array is stored as well,
+because deriving it is most of a load's time: the four-wide BVH's choice of
+binary nodes per wide node (:func:`..structures.bvh.wide.wide_tree`; full dragon:
+27 ms of random reads over the whole tree, against 3 ms to read and check it). It is
+optional: a file without it gets it derived again.
 """
 
 from __future__ import annotations
@@ -21,6 +25,7 @@ import numpy as np
 
 from ..structures.bvh.accelerator import _BOUNDS, BoundingVolumeHierarchy
 from ..structures.bvh.nodes import node_depths
+from ..structures.bvh.wide import WIDTH, wide_depth
 from ..structures.grid.accelerator import UniformGrid
 from ..structures.grid.layout import GridArrays
 from ..structures.grid.mailbox import MailboxPool
@@ -177,8 +182,31 @@ def _save_bvh(accel):
     if hasattr(accel, "sah_cost_at_build"):
         meta["sah_cost_at_build"] = accel.sah_cost_at_build
     b = accel.bvh
-    return meta, {"bvh.node_box": b.node_box, "bvh.node_first": b.node_first, "bvh.node_count": b.node_count,
-                  "bvh.prim_order": b.prim_order}
+    arrays = {"bvh.node_box": b.node_box, "bvh.node_first": b.node_first, "bvh.node_count": b.node_count,
+              "bvh.prim_order": b.prim_order}
+    if accel.wide is not None:
+        arrays["bvh.wide_slots"], arrays["bvh.wide_children"] = accel._wide_tree
+    return meta, arrays
+
+
+def _wide_tree(arrays, node_count, max_depth):
+    """The saved collapse of the checked binary tree into the four-wide one, checked: slots
+    hold binary nodes or -1 (slot 0 always used), inner slots link forward to wide nodes
+    with one parent each, and the wide tree is no deeper than the binary one (whose depth
+    sizes the traversal stack). None when the file has none."""
+    if "bvh.wide_slots" not in arrays:
+        return None
+    slots = c.array(arrays, "bvh.wide_slots", np.int32, (None, WIDTH))
+    children = c.array(arrays, "bvh.wide_children", np.int32, (len(slots), WIDTH))
+    c.require(len(slots) >= 1, "the four-wide BVH has no node")
+    c.index_range("bvh.wide_slots", slots, -1, len(node_count))
+    c.require(bool((slots[:, 0] >= 0).all()), "a four-wide BVH node has no first child")
+    inner = slots >= 0
+    inner[inner] = node_count[slots[inner]] == 0
+    parents = np.nonzero(inner)[0]
+    c.single_parents("the four-wide BVH", parents, children[inner].astype(np.int64), len(slots))
+    c.require(wide_depth(slots, children, node_count) <= max_depth, "the four-wide BVH is deeper than its binary tree")
+    return slots, children
 
 
 def _load_bvh(accel, meta, arrays):
@@ -196,8 +224,12 @@ def _load_bvh(accel, meta, arrays):
         accel.sah_cost_at_build = meta["sah_cost_at_build"]
     accel.bounds_kind = _BOUNDS[options["bounds"]]
     accel.geometry = accel.scene.gather(order)
-    accel._pack_for_traversal(box, first, count, order, pad)
     accel.max_depth = int(depth.max())
+    wide_tree = _wide_tree(arrays, count, accel.max_depth)
+    if wide_tree is not None:
+        c.require(options["bounds"] == "aabb" and options["width"] == 4, "a four-wide tree saved with a binary BVH")
+        accel._wide_tree = wide_tree
+    accel._pack_for_traversal(box, first, count, order, pad, same_tree=wide_tree is not None)
 
 
 # --- grid-bvh -----------------------------------------------------------------------------

@@ -10,12 +10,12 @@ import numpy as np
 from ..._jit import thread_count
 from ..._validate import check_number
 from ...geometry.kdop import KDOP_NORMALS, kdop_surface_areas
-from ...stats import box_area, surface_area_stats
+from ...stats import surface_area_stats
 from ..base import Accelerator
 from .build_ploc import build_ploc
 from .build_top_down import MORTON, OBJECT_MEDIAN, SAH_BINNED, SAH_SWEEP, SPATIAL_MEDIAN, build_top_down
 from .layout import BvhArrays, node_rows, pack_nodes
-from .nodes import node_depths
+from .nodes import box_surface_areas, node_depths, sah_cost
 from .refit import refit_bvh
 from .split_morton import morton_codes
 from .traverse import BOX, KDOP, SPHERE_VOLUME, bvh_trace_kernel
@@ -108,8 +108,9 @@ class BoundingVolumeHierarchy(Accelerator):
     def _pack_for_traversal(self, box, first, count, order, pad, same_tree=False):
         """Set :attr:`bvh` to the binary tree (boxes already grown by ``pad``) and derive from it
         and :attr:`geometry` every array the traversal reads. The build, :meth:`refit` and
-        :func:`rayaccel.load_accelerator` all go through here; ``same_tree`` (a refit) keeps
-        the four-wide collapse of the tree packed before and repacks only its boxes."""
+        :func:`rayaccel.load_accelerator` all go through here; ``same_tree`` (a refit, or a load
+        that read the collapse from the file) keeps the four-wide collapse in ``_wide_tree`` and
+        packs only its boxes."""
         self.pad = pad
         bounds = self.options["bounds"]
         wide = bounds == "aabb" and self.options["width"] == 4
@@ -162,7 +163,12 @@ class BoundingVolumeHierarchy(Accelerator):
             return 4.0 * np.pi * self.volume[:, 3] ** 2
         if self.bounds_kind == KDOP:
             return kdop_surface_areas(self.volume, KDOP_NORMALS)
-        return box_area(self.bvh.node_box[:, :3], self.bvh.node_box[:, 3:])
+        return box_surface_areas(self.bvh.node_box)
+
+    def sah_cost(self, areas=None) -> float:
+        """The SAH cost of the tree's volumes (``areas``: :meth:`volume_areas`, when known)."""
+        areas = self.volume_areas() if areas is None else areas
+        return sah_cost(areas, self.bvh.node_count, self.options["traversal_cost"], self.options["intersection_cost"])
 
     def _structure_stats(self) -> dict:
         b = self.bvh
@@ -183,7 +189,7 @@ class BoundingVolumeHierarchy(Accelerator):
                                 traversal_cost=self.options["traversal_cost"],
                                 intersection_cost=self.options["intersection_cost"])
         result.update(sa)
-        result["sah_cost"] = sa["expected_cost"]
+        result["sah_cost"] = self.sah_cost(areas)
         result["sah_cost_at_build"] = getattr(self, "sah_cost_at_build", result["sah_cost"])
         return result
 

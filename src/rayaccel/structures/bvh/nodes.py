@@ -6,7 +6,8 @@ import numpy as np
 
 from ..._jit import kernel
 
-__all__ = ["box_area6", "longest_axis", "range_bounds", "swap_prims", "permute_prims", "compact", "node_depths"]
+__all__ = ["box_area6", "longest_axis", "range_bounds", "swap_prims", "permute_prims", "compact", "node_depths",
+           "box_surface_areas", "sah_cost"]
 
 
 @kernel
@@ -133,3 +134,27 @@ def node_depths(node_first, node_count):
             depth[node_first[node]] = depth[node] + 1
             depth[node_first[node] + 1] = depth[node] + 1
     return depth
+
+
+@kernel
+def box_surface_areas(node_box):
+    """Surface area of every box row ``lo, hi`` of ``node_box`` (n, 6)."""
+    areas = np.empty(node_box.shape[0])
+    for node in range(node_box.shape[0]):
+        areas[node] = box_area6(node_box[node])
+    return areas
+
+
+@kernel
+def sah_cost(areas, node_count, traversal_cost, intersection_cost):
+    """The tree's SAH cost (MacDonald & Booth 1990): ``traversal_cost`` per inner node and
+    ``intersection_cost`` per primitive of each leaf, weighted by the node's surface area
+    relative to the root's, the probability that a random line through the root meets it."""
+    steps = 0.0
+    tests = 0.0
+    for node in range(areas.shape[0]):
+        if node_count[node] == 0:
+            steps += areas[node]
+        else:
+            tests += areas[node] * node_count[node]
+    return (traversal_cost * steps + intersection_cost * tests) / areas[0]

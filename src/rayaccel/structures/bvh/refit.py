@@ -102,7 +102,7 @@ def refit_bvh(accel, vertices, padding) -> None:
     and refit its boxes; ``padding(node_box)`` is the rounding margin its build adds."""
     start = time.perf_counter()
     if not hasattr(accel, "sah_cost_at_build"):
-        accel.sah_cost_at_build = accel._structure_stats()["sah_cost"]
+        accel.sah_cost_at_build = accel.sah_cost()
     scene = refitted_scene(accel.scene, vertices)
     b = accel.bvh
     geometry = scene.gather(b.prim_order, out=accel.geometry)  # in place: the old positions are not needed

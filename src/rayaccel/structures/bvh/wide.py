@@ -31,9 +31,9 @@ from __future__ import annotations
 import numpy as np
 from numba import prange
 
-from ..._jit import kernel, parallel_kernel
+from ..._jit import inline_kernel, kernel, parallel_kernel
 
-__all__ = ["WIDTH", "UNUSED", "wide_tree", "wide_records"]
+__all__ = ["WIDTH", "UNUSED", "wide_tree", "wide_records", "wide_depth"]
 
 WIDTH = 4
 UNUSED = -1
@@ -86,6 +86,24 @@ def _collapse(node_box, node_first, node_count):
     return slots[:n_wide], child_wide[:n_wide]
 
 
+@inline_kernel
+def _float32_outward(exact, upper):
+    """``exact`` rounded to a float32 no smaller (``upper``) or no larger than it. One step of
+    ``exact``'s own size in float32 ulps (2**-23 of it) moves past any rounding in the wrong
+    direction; ``nextafter`` (a library call, most of the packing time when called for every
+    box face) is left for values too small for that step."""
+    rounded = np.float32(exact)
+    if upper and rounded < exact:
+        rounded = np.float32(exact + abs(exact) * 2.0 ** -23)
+        if rounded < exact:
+            rounded = np.nextafter(rounded, np.float32(np.inf))
+    elif not upper and rounded > exact:
+        rounded = np.float32(exact - abs(exact) * 2.0 ** -23)
+        if rounded > exact:
+            rounded = np.nextafter(rounded, np.float32(-np.inf))
+    return rounded
+
+
 @parallel_kernel
 def _pack(slots, child_wide, node_box, node_first, node_count, records, links):
     for wide in prange(slots.shape[0]):
@@ -98,13 +116,7 @@ def _pack(slots, child_wide, node_box, node_first, node_count, records, links):
                 links[wide, 28 + c] = UNUSED
                 continue
             for j in range(6):
-                exact = node_box[binary, j]
-                rounded = np.float32(exact)
-                if j < 3 and rounded > exact:
-                    rounded = np.nextafter(rounded, np.float32(-np.inf))
-                elif j >= 3 and rounded < exact:
-                    rounded = np.nextafter(rounded, np.float32(np.inf))
-                records[wide, 4 * j + c] = rounded
+                records[wide, 4 * j + c] = _float32_outward(node_box[binary, j], j >= 3)
             inner = node_count[binary] == 0
             links[wide, 24 + c] = child_wide[wide, c] if inner else node_first[binary]
             links[wide, 28 + c] = 0 if inner else node_count[binary]
@@ -129,3 +141,16 @@ def wide_records(node_box: np.ndarray, node_first: np.ndarray, node_count: np.nd
     records = raw[offset:offset + n_wide * 128].view(np.float32).reshape(n_wide, 32)
     _pack(slots, child_wide, node_box, node_first, node_count, records, records.view(np.int32))
     return records
+
+
+@kernel
+def wide_depth(slots, child_wide, node_count):
+    """Depth of the deepest wide node (root 0) of a collapse whose inner children follow
+    their parents."""
+    depth = np.zeros(slots.shape[0], dtype=np.int64)
+    for wide in range(slots.shape[0]):
+        for c in range(WIDTH):
+            binary = slots[wide, c]
+            if binary >= 0 and node_count[binary] == 0:
+                depth[child_wide[wide, c]] = depth[wide] + 1
+    return depth.max()
