@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import contextlib
 
-__all__ = ["progress_bar", "status", "table_console"]
+__all__ = ["progress_bar", "progress_steps", "status", "table_console"]
 
 
 def _terminal():
@@ -36,6 +36,32 @@ def progress_bar(description: str, total: int, enabled: bool = True):
                   TimeElapsedColumn(), transient=True, console=console) as progress:
         task = progress.add_task(description, total=total)
         yield lambda done, total_=None: progress.update(task, completed=done)
+
+
+@contextlib.contextmanager
+def progress_steps(description: str, steps: int, enabled: bool = True):
+    """Yield ``bar(description, total)``, a context manager like :func:`progress_bar` whose bar shows
+    under an overall bar of ``steps`` steps; each bar closed is one step done (on a terminal)."""
+    console = _terminal() if enabled else None
+    if console is None:
+        yield lambda description_, total: progress_bar(description_, total, enabled=False)
+        return
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+    with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
+                  TimeElapsedColumn(), transient=True, console=console) as progress:
+        overall = progress.add_task(f"[bold]{description}", total=steps)
+
+        @contextlib.contextmanager
+        def bar(step_description: str, total: int):
+            task = progress.add_task(f"  {step_description}", total=total)
+            try:
+                yield lambda done, total_=None: progress.update(task, completed=done)
+            finally:
+                progress.remove_task(task)
+                progress.advance(overall)
+
+        yield bar
 
 
 @contextlib.contextmanager

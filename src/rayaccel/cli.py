@@ -1,4 +1,4 @@
-"""The ``rayaccel`` command: demo, render, stats, build, experiments, calibration."""
+"""The ``rayaccel`` command: demo, render, stats, build, experiments, report, calibration."""
 
 from __future__ import annotations
 
@@ -234,74 +234,33 @@ def _cmd_demo(args) -> None:
 
 
 def _cmd_experiment(args) -> None:
+    from functools import partial
+
     from ._progress import progress_bar
-    from .structures.registry import methods
+    from .experiments import runner
 
     if args.name != "grid-vs-none" and (args.workers is not None or args.scheduler is not None):
         raise CliError("--workers and --scheduler apply to experiment grid-vs-none only")
-    if args.name == "grid-vs-none":
-        from .experiments import grid_vs_none
+    if args.name != "kdtree-table" and args.method is not None:
+        raise CliError("--method applies to experiment kdtree-table only")
+    progress = partial(progress_bar, enabled=not args.quiet)
+    with _cluster(args) as client:
+        options = {"max_n": args.max_n, "client": client} if args.name == "grid-vs-none" else {}
+        if args.name == "kdtree-table":
+            options["method"] = args.method
+        written = runner.run(args.name, args.out, args.size, args.scenes, progress, args.quick, **options)
+    print(written.table.read_text())
+    print(f"wrote {written.table} and {written.plot}"
+          + (f", and {len(written.images)} more images" if written.images else ""))
 
-        sizes = [n for n in (10, 100, 1_000, 10_000, 100_000, 1_000_000, 10_000_000) if n <= args.max_n]
-        if not sizes:
-            raise CliError("--max-n must be at least 10")
-        with _cluster(args) as client, progress_bar("grid vs no grid", len(sizes), enabled=not args.quiet) as advance:
-            rows = grid_vs_none.run(sizes, image_size=args.size, progress=advance, client=client)
-        table, plot = grid_vs_none.write_report(rows, args.out, args.size)
-    elif args.name == "bvh":
-        from .experiments import bvh_builders
 
-        scenes = args.scenes or list(bvh_builders.DEFAULT_SCENES)
-        n_builders = sum(m.startswith("bvh-") for m in methods())
-        with progress_bar("which BVH is better", len(scenes) * n_builders, enabled=not args.quiet) as advance:
-            rows = bvh_builders.run(scenes, side=args.size, heatmap_dir=Path(args.out), progress=advance)
-        table, plot = bvh_builders.write_report(rows, args.out, args.size)
-    elif args.name == "grid-resolution":
-        from .experiments import grid_resolution
+def _cmd_report(args) -> None:
+    from .report import write_report
 
-        scenes = args.scenes or ["bunny", "spheres:100000"]
-        total = len(scenes) * len(grid_resolution.DENSITIES)
-        with progress_bar("grid resolution sweep", total, enabled=not args.quiet) as advance:
-            rows = grid_resolution.run(scenes, side=args.size, progress=advance)
-        table, plot = grid_resolution.write_report(rows, args.out, args.size)
-    elif args.name == "kdtree-table":
-        from .experiments import kdtree_table
-
-        scenes = args.scenes or list(kdtree_table.DEFAULT_SCENES)
-        method = args.method or "kdtree"
-        if method not in methods():
-            raise CliError(f"unknown method {method!r}; choose one of {', '.join(methods())}")
-        with progress_bar(f"kd-tree table for {method}", len(scenes), enabled=not args.quiet) as advance:
-            columns = kdtree_table.run(scenes, method, side=args.size, progress=advance)
-        table, plot = kdtree_table.write_report(columns, method, args.out, args.size)
-    elif args.name == "structures":
-        from .experiments import structures
-
-        if args.scenes and len(args.scenes) > 1:
-            raise CliError("experiment structures takes one scene")
-        scene = args.scenes[0] if args.scenes else "forest-small-chair"
-        chosen = [m for m in methods() if m != "none"]
-        with progress_bar(f"every structure on {scene}", len(chosen), enabled=not args.quiet) as advance:
-            rows = structures.run(scene, chosen, side=args.size, out_dir=Path(args.out), progress=advance)
-        table, plot = structures.write_report(rows, args.out, args.size)
-    elif args.name == "leaf-size":
-        from .experiments import leaf_size
-
-        scenes = args.scenes or ["bunny", "dragon-203k"]
-        total = len(scenes) * len(leaf_size.SWEPT) * len(leaf_size.LEAF_SIZES)
-        with progress_bar("leaf size sweep", total, enabled=not args.quiet) as advance:
-            rows = leaf_size.run(scenes, side=args.size, progress=advance)
-        table, plot = leaf_size.write_report(rows, args.out, args.size)
-    else:
-        from .experiments import bounding_volumes
-
-        scenes = args.scenes or ["bunny", "dragon-203k", "armadillo"]
-        total = len(scenes) * len(bounding_volumes.VOLUMES)
-        with progress_bar("cheap vs tight volumes", total, enabled=not args.quiet) as advance:
-            rows = bounding_volumes.run(scenes, side=args.size, progress=advance)
-        table, plot = bounding_volumes.write_report(rows, args.out, args.size)
-    print(table.read_text())
-    print(f"wrote {table} and {plot}")
+    start = time.perf_counter()
+    out = write_report(args.out, quick=args.quick, bench_results=args.bench_results, size=args.size,
+                       show_progress=not args.quiet)
+    print(f"wrote {out} ({out.stat().st_size / 1e6:.1f} MB) in {time.perf_counter() - start:.0f} s")
 
 
 def _cmd_calibrate(args) -> None:
@@ -331,6 +290,8 @@ def _cmd_methods(args) -> None:
 
 
 def _parser() -> argparse.ArgumentParser:
+    from .experiments.runner import names as runner_names
+
     parser = argparse.ArgumentParser(prog="rayaccel", description="Ray-tracing acceleration structures.")
     parser.add_argument("--quiet", action="store_true", help="no progress display")
     parser.add_argument("--threads", type=int, help="threads for parallel kernels (default: all cores)")
@@ -383,15 +344,25 @@ def _parser() -> argparse.ArgumentParser:
     build.set_defaults(func=_cmd_build)
 
     experiment = sub.add_parser("experiment", help="reproduce a lecture experiment")
-    experiment.add_argument("name", choices=["grid-vs-none", "grid-resolution", "bvh", "bounding-volumes",
-                                             "kdtree-table", "structures", "leaf-size"])
-    experiment.add_argument("--max-n", type=int, default=1_000_000, help="grid-vs-none: largest scene size")
+    experiment.add_argument("name", choices=runner_names())
+    experiment.add_argument("--quick", action="store_true",
+                            help="small scenes, sizes and sweeps: a first look in seconds, not the lecture's figures")
+    experiment.add_argument("--max-n", type=int, help="grid-vs-none: largest scene size (default 1,000,000)")
     experiment.add_argument("--scenes", nargs="+", help="scenes to measure (structures: one scene)")
     experiment.add_argument("--method", help="kdtree-table: the structure tabulated (default kdtree)")
-    experiment.add_argument("--size", type=int, default=512, help="image width and height (primary rays per side)")
+    experiment.add_argument("--size", type=int, help="image width and height (primary rays per side; default 512)")
     experiment.add_argument("--out", default="rayaccel-out", help="folder for the table and plot")
     cluster_args(experiment, "grid-vs-none: render the rows of 100,000 spheres or more in tiles")
     experiment.set_defaults(func=_cmd_experiment)
+
+    report = sub.add_parser("report", help="run every lecture experiment and write one self-contained HTML page")
+    report.add_argument("--quick", action="store_true", help="small scenes, sizes and sweeps: about a minute")
+    report.add_argument("--out", type=Path, default=Path("report.html"),
+                        help="the HTML page; the experiments' own files go to a folder beside it")
+    report.add_argument("--size", type=int, help="image width and height of the experiments (default 512, quick 96)")
+    report.add_argument("--bench-results", type=Path, metavar="DIR",
+                        help="folder of benchmarks/bench_structures.py's results (default: benchmarks/results)")
+    report.set_defaults(func=_cmd_report)
 
     calibrate = sub.add_parser("calibrate", help="measure C_i and C_c for the grid cost model")
     calibrate.set_defaults(func=_cmd_calibrate)

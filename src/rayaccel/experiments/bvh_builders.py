@@ -24,7 +24,7 @@ from ..render import default_camera, render, save_heatmap
 from ..structures.registry import build, methods
 from ._report import markdown_table, new_figure, save_figure
 
-__all__ = ["DEFAULT_SCENES", "BuilderRow", "incoherent_rays", "run", "write_report"]
+__all__ = ["DEFAULT_SCENES", "BuilderRow", "heatmap_path", "incoherent_rays", "run", "write_report"]
 
 DEFAULT_SCENES = ("bunny", "buddha", "armadillo", "dragon-203k", "dragon", "spheres:100000")
 
@@ -60,6 +60,11 @@ def _rate(accel, origins, directions, any_hit: bool) -> float:
     return len(origins) / median_seconds(lambda: query(origins, directions), repeats=3) / 1e6
 
 
+def heatmap_path(heatmap_dir, scene_name: str, method: str) -> Path:
+    """Where :func:`run` writes the nodes-visited heatmap of builder ``method`` on ``scene_name``."""
+    return Path(heatmap_dir) / f"bvh-heatmap-{scene_name.replace(':', '-')}-{method}.png"
+
+
 def run(scenes=DEFAULT_SCENES, builders=None, side: int = 512, heatmap_dir: Path | None = None,
         progress=None) -> list[BuilderRow]:
     """Measure every builder on every scene; ``progress(done, total)`` after each pair."""
@@ -86,8 +91,8 @@ def run(scenes=DEFAULT_SCENES, builders=None, side: int = 512, heatmap_dir: Path
                 _rate(accel, *incoherent, False), _rate(accel, *incoherent, True)))
             if heatmap_dir is not None and s == 0:
                 result = render(accel, camera, side, side, shadows=False)
-                save_heatmap(result.nodes, Path(heatmap_dir) / f"bvh-heatmap-{name.replace(':', '-')}-{method}.png",
-                             "nodes visited", f"{name}, {method}")
+                save_heatmap(result.nodes, heatmap_path(heatmap_dir, name, method), "nodes visited",
+                             f"{name}, {method}")
             if progress is not None:
                 progress(s * len(builders) + b + 1, total)
     return rows

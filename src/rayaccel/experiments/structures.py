@@ -18,7 +18,13 @@ from ..structures.registry import methods as all_methods
 from ._report import build_and_render_bars, markdown_table
 from .kdtree_table import measure
 
-__all__ = ["run", "write_report"]
+__all__ = ["image_paths", "run", "write_report"]
+
+
+def image_paths(out_dir, scene_name: str, method: str) -> tuple[Path, Path]:
+    """Where :func:`run` writes the render and the nodes-visited heatmap of ``method`` on ``scene_name``."""
+    stem = Path(out_dir) / f"structures-{scene_name.replace(':', '-')}-{method}"
+    return stem.with_suffix(".png"), stem.with_name(stem.name + "-nodes.png")
 
 
 def run(scene_name: str = "forest-small-chair", methods=None, side: int = 512, out_dir=None,
@@ -31,10 +37,9 @@ def run(scene_name: str = "forest-small-chair", methods=None, side: int = 512, o
     for k, method in enumerate(methods):
         stats, result = measure(scene_name, scene, method, side)
         if out_dir is not None:
-            stem = Path(out_dir) / f"structures-{scene_name.replace(':', '-')}-{method}"
-            save_png(result.image, stem.with_suffix(".png"))
-            save_heatmap(result.nodes, stem.with_name(stem.name + "-nodes.png"), "nodes or cells visited",
-                         f"{scene_name}, {method}")
+            image, heatmap = image_paths(out_dir, scene_name, method)
+            save_png(result.image, image)
+            save_heatmap(result.nodes, heatmap, "nodes or cells visited", f"{scene_name}, {method}")
         rows.append(stats)
         if progress is not None:
             progress(k + 1, len(methods))
