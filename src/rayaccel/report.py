@@ -109,9 +109,10 @@ figcaption { font-size: 0.85rem; color: #55606e; }
 .gallery { display: grid; grid-template-columns: repeat(auto-fill, minmax(330px, 1fr)); gap: 0.8rem; }
 .card { border: 1px solid #d9dee5; border-radius: 6px; padding: 0.5rem; }
 .card h4 { margin: 0 0 0.3rem; }
-.pair { display: flex; gap: 0.4rem; align-items: flex-start; }
-.pair figure { flex: 1; margin: 0; min-width: 0; }
+.pair { display: grid; grid-template-columns: 1fr 1fr; gap: 0.4rem; align-items: end; }
+.pair figure { margin: 0; min-width: 0; }
 .render img { image-rendering: pixelated; width: 100%; }
+.took { color: #55606e; font-size: 0.85rem; margin-top: -0.4rem; }
 dl.machine { display: grid; grid-template-columns: max-content 1fr; gap: 0.2rem 1rem; }
 dl.machine dt { font-weight: 600; }
 dl.machine dd { margin: 0; }
@@ -136,11 +137,15 @@ def _inline_images(text: str, folder: Path) -> str:
     return re.sub(r'(<img\b[^>]*?\bsrc=")(?!data:)([^"]+)("[^>]*>)', inline, text)
 
 
-def markdown_html(path: Path, demote: int = 2) -> str:
-    """A markdown file as HTML: tables converted, headings ``demote`` levels down, images inlined."""
+def markdown_html(path: Path, demote: int = 2, drop_title: bool = False) -> str:
+    """A markdown file as HTML: tables converted, headings ``demote`` levels down, images inlined;
+    ``drop_title``: without its first top-level heading."""
     import markdown
 
-    text = markdown.markdown(Path(path).read_text(), extensions=["tables"], output_format="html")
+    source = Path(path).read_text()
+    if drop_title:
+        source = re.sub(r"\A\s*# [^\n]*\n", "", source)
+    text = markdown.markdown(source, extensions=["tables"], output_format="html")
     text = re.sub(r"<(/?)h([1-6])\b", lambda m: f"<{m.group(1)}h{min(int(m.group(2)) + demote, 6)}", text)
     text = text.replace("<table>", '<div class="scroll"><table>').replace("</table>", "</table></div>")
     return _inline_images(text, Path(path).parent)
@@ -164,8 +169,10 @@ def _gallery(images) -> str:
     return f'<div class="gallery">{"".join(cards)}</div>'
 
 
-def _section(section: Section, written: runner.Written) -> str:
+def _section(section: Section, written: runner.Written, seconds: float, quick: bool) -> str:
+    command = f"rayaccel experiment {section.name}" + (" --quick" if quick else "")
     parts = [f'<h2 id="{section.name}">{html.escape(section.title)}</h2>',
+             f'<p class="took">Alone: <code>{command}</code>; {seconds:.0f} s in this run.</p>',
              f'<p class="claim"><b>The lecture:</b> {html.escape(section.lecture)}</p>',
              f'<p class="claim"><b>Measured here:</b> {html.escape(section.measured)}</p>',
              markdown_html(written.table),
@@ -199,7 +206,7 @@ def _bench_section(folder: Path | None) -> str:
         return "\n".join(parts)
     stamp = datetime.datetime.fromtimestamp(found.stat().st_mtime).astimezone().strftime("%Y-%m-%d %H:%M")
     parts.append(f'<p class="subtitle">From <code>{html.escape(str(found))}</code>, written {stamp}.</p>')
-    parts.append(markdown_html(found))
+    parts.append(markdown_html(found, drop_title=True))
     return "\n".join(parts)
 
 
@@ -262,10 +269,12 @@ def write_report(out, quick: bool = False, bench_results: Path | None = None, si
     work = out.with_name(out.stem + "-files")
     started = datetime.datetime.now().astimezone()
     clock = time.perf_counter()
-    written = {}
+    written, seconds = {}, {}
     with progress_steps("rayaccel report", len(SECTIONS), enabled=show_progress) as bar:
         for section in SECTIONS:
+            start = time.perf_counter()
             written[section.name] = runner.run(section.name, work, size, None, bar, quick)
+            seconds[section.name] = time.perf_counter() - start
     minutes = (time.perf_counter() - clock) / 60
 
     title = "Ray-tracing acceleration structures: the lecture's experiments, measured"
@@ -285,7 +294,7 @@ def write_report(out, quick: bool = False, bench_results: Path | None = None, si
                 "compare within a table.</p>")
     body.append("<nav><h3>Contents</h3><ol>" + "".join(f'<li><a href="#{anchor}">{html.escape(name)}</a></li>'
                                                        for anchor, name in toc) + "</ol></nav>")
-    body += [_section(section, written[section.name]) for section in SECTIONS]
+    body += [_section(section, written[section.name], seconds[section.name], quick) for section in SECTIONS]
     body.append(_bench_section(bench_results))
     rows = machine() + [("measured", f"{started:%Y-%m-%d %H:%M %Z}"),
                         ("command", "rayaccel report" + (" --quick" if quick else "")),

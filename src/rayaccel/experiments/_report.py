@@ -7,11 +7,16 @@ from pathlib import Path
 __all__ = ["markdown_table", "new_figure", "save_figure", "build_and_render_bars"]
 
 
+def _cell(value) -> str:
+    return str(value).replace("|", "\\|")
+
+
 def markdown_table(headers: list[str], rows: list[list], align_right_from: int = 1) -> list[str]:
-    """Lines of a markdown table; columns from ``align_right_from`` on are right-aligned."""
+    """Lines of a markdown table; columns from ``align_right_from`` on are right-aligned; a ``|`` in a
+    cell is escaped so that it does not split the cell."""
     marks = ["---" if i < align_right_from else "---:" for i in range(len(headers))]
-    lines = ["| " + " | ".join(headers) + " |", "|" + "|".join(marks) + "|"]
-    lines += ["| " + " | ".join(str(cell) for cell in row) + " |" for row in rows]
+    lines = ["| " + " | ".join(_cell(h) for h in headers) + " |", "|" + "|".join(marks) + "|"]
+    lines += ["| " + " | ".join(_cell(cell) for cell in row) + " |" for row in rows]
     return lines
 
 
