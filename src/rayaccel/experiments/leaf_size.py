@@ -38,11 +38,11 @@ class LeafSizeRow:
 
 
 def run(scenes=("bunny", "dragon-203k"), leaf_sizes=LEAF_SIZES, side: int = 512, progress=None) -> list[LeafSizeRow]:
-    warm_up(list(SWEPT))
+    loaded = [(name, load_scene(name)) for name in scenes]
+    warm_up(list(SWEPT), list(dict.fromkeys(scene.kind for _, scene in loaded)))
     rows = []
     total = len(scenes) * len(SWEPT) * len(leaf_sizes)
-    for name in scenes:
-        scene = load_scene(name)
+    for name, scene in loaded:
         rays = default_camera(scene).rays(side, side)
         for method, option in SWEPT.items():
             for size in leaf_sizes:

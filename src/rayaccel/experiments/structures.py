@@ -31,8 +31,8 @@ def run(scene_name: str = "forest-small-chair", methods=None, side: int = 512, o
         progress=None) -> list[dict]:
     """Measure every method on one scene, writing its image and heatmap into ``out_dir``."""
     methods = methods or [m for m in all_methods() if m != "none"]
-    warm_up(methods)
     scene = load_scene(scene_name)
+    warm_up(methods, [scene.kind])
     rows = []
     for k, method in enumerate(methods):
         stats, result = measure(scene_name, scene, method, side)
