@@ -110,7 +110,7 @@ figcaption { font-size: 0.85rem; color: #55606e; }
 .card { border: 1px solid #d9dee5; border-radius: 6px; padding: 0.5rem; }
 .card h4 { margin: 0 0 0.3rem; }
 .pair { display: grid; grid-template-columns: 1fr 1fr; gap: 0.4rem; align-items: end; }
-.pair figure { margin: 0; min-width: 0; }
+.pair figure, .single figure { margin: 0; min-width: 0; }
 .render img { image-rendering: pixelated; width: 100%; }
 .took { color: #55606e; font-size: 0.85rem; margin-top: -0.4rem; }
 dl.machine { display: grid; grid-template-columns: max-content 1fr; gap: 0.2rem 1rem; }
@@ -165,7 +165,8 @@ def _gallery(images) -> str:
     for group, members in groups.items():
         figures = "".join(_figure(m.path, m.caption, "render" if m.caption == "render" else "")
                           for m in members if m.path.is_file())
-        cards.append(f'<div class="card"><h4>{html.escape(group)}</h4><div class="pair">{figures}</div></div>')
+        layout = "pair" if len(members) > 1 else "single"
+        cards.append(f'<div class="card"><h4>{html.escape(group)}</h4><div class="{layout}">{figures}</div></div>')
     return f'<div class="gallery">{"".join(cards)}</div>'
 
 
