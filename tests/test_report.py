@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import base64
+import os
 import shutil
 from pathlib import Path
 
@@ -11,15 +12,13 @@ import pytest
 from PIL import Image
 
 from rayaccel.cli import main
-from rayaccel.report import SECTIONS
+from rayaccel.report import SECTIONS, find_bench_results, markdown_html
 
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
 CHROMEDRIVER = shutil.which("chromedriver")
 TEST_SIDE = 32
 
-pytestmark = pytest.mark.skipif(
-    CHROMIUM is None or CHROMEDRIVER is None,
-    reason="needs Debian's chromium and chromium-driver (apt-get install -y chromium chromium-driver)")
+NO_BROWSER = "needs Debian's chromium and chromium-driver (apt-get install -y chromium chromium-driver)"
 
 
 def _fake_bench_results(folder: Path) -> Path:
@@ -37,6 +36,8 @@ def _fake_bench_results(folder: Path) -> Path:
 
 @pytest.fixture(scope="module")
 def page(tmp_path_factory):
+    if CHROMIUM is None or CHROMEDRIVER is None:
+        pytest.skip(NO_BROWSER)
     from selenium import webdriver
     from selenium.webdriver.chrome.options import Options
     from selenium.webdriver.chrome.service import Service
@@ -119,3 +120,15 @@ def test_full_page_screenshot(page, tmp_path):
     path.write_bytes(base64.b64decode(shot["data"]))
     with Image.open(path) as picture:
         assert picture.size == (width, height) and height > 2000
+
+
+def test_newest_bench_results_are_found_and_inlined(tmp_path):
+    assert find_bench_results(tmp_path / "absent") is None and find_bench_results(tmp_path) is None
+    older = _fake_bench_results(tmp_path / "results" / "older")
+    newer = _fake_bench_results(tmp_path / "results" / "newer")
+    os.utime(older / "bench_structures.md", (1e9, 1e9))
+    assert find_bench_results(tmp_path / "results") == newer / "bench_structures.md"
+    (newer / "bench_structures.png").unlink()
+    text = markdown_html(newer / "bench_structures.md", drop_title=True)
+    assert "<table>" in text and "<h4>bunny</h4>" in text and "rayaccel against its peers" not in text
+    assert "<img" not in text and "bench_structures.png was not written" in text
