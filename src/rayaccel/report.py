@@ -200,10 +200,10 @@ def _bench_section(folder: Path | None) -> str:
     found = find_bench_results(folder)
     if found is None:
         parts.append(f'<p class="note">No benchmark results were found in <code>{html.escape(str(where))}</code>. '
-                     f"Run <code>{BENCH_COMMAND}</code> from the project's folder (it installs the peers itself; the "
-                     "default run takes 13 to 19 minutes on a 2-core machine, <code>--scenes bunny --side 256</code> "
-                     "a few), then write the report again, or point <code>--bench-results DIR</code> at the folder "
-                     "of its <code>--out</code>.</p>")
+                     f"Run <code>{BENCH_COMMAND}</code> from the project's folder (it installs the peers "
+                     "itself; the default run took 13 to 19 minutes on a shared 2-core machine; "
+                     "<code>--scenes bunny --side 256</code> is shorter), then write the report again, or point "
+                     "<code>--bench-results DIR</code> at the folder of its <code>--out</code>.</p>")
         return "\n".join(parts)
     stamp = datetime.datetime.fromtimestamp(found.stat().st_mtime).astimezone().strftime("%Y-%m-%d %H:%M")
     parts.append(f'<p class="subtitle">From <code>{html.escape(str(found))}</code>, written {stamp}.</p>')
