@@ -113,7 +113,7 @@ def kdtree_table(out_dir, size=None, scenes=None, progress=silent, quick=False, 
     method = method or "kdtree"
     if method not in methods():
         raise ValueError(f"unknown method {method!r}; choose one of {', '.join(methods())}")
-    scenes = scenes or (["bunny"] if quick else list(experiment.DEFAULT_SCENES))
+    scenes = scenes or (["bunny", "forest"] if quick else list(experiment.DEFAULT_SCENES))
     side = _side(size, quick)
     with progress(f"kd-tree table for {method}", len(scenes)) as advance:
         columns = experiment.run(scenes, method, side=side, progress=advance)
