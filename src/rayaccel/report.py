@@ -137,10 +137,18 @@ def _inline_images(text: str, folder: Path) -> str:
     return re.sub(r'(<img\b[^>]*?\bsrc=")(?!data:)([^"]+)("[^>]*>)', inline, text)
 
 
+def _markdown():
+    try:
+        import markdown
+    except ImportError:
+        raise ImportError("the report converts markdown with the markdown package: pip install markdown") from None
+    return markdown
+
+
 def markdown_html(path: Path, demote: int = 2, drop_title: bool = False) -> str:
     """A markdown file as HTML: tables converted, headings ``demote`` levels down, images inlined;
     ``drop_title``: without its first top-level heading."""
-    import markdown
+    markdown = _markdown()
 
     source = Path(path).read_text()
     if drop_title:
@@ -266,6 +274,7 @@ def write_report(out, quick: bool = False, bench_results: Path | None = None, si
     ``benchmarks/bench_structures.py``'s results (default ``benchmarks/results``)."""
     from ._progress import progress_steps
 
+    _markdown()
     out = Path(out)
     work = out.with_name(out.stem + "-files")
     started = datetime.datetime.now().astimezone()
