@@ -167,7 +167,12 @@ class KdTree(Accelerator):
         start = time.perf_counter()
         self.kd = self._build(scene, threads, **options)
         self.build_seconds = time.perf_counter() - start
+        self._derive_cells()
+
+    def _derive_cells(self) -> None:
+        """The cell and depth of every node, from the built (or loaded) tree."""
         self._cells, depth = node_cells(self.kd.lo, self.kd.hi, self.kd.node_split, self.kd.node_link)
+        self._depth = depth.astype(np.uint8)
         self.max_depth = int(depth.max())
 
     def _build(self, scene, threads, traversal_cost, intersection_cost, empty_bonus, leaf_size, max_depth, bins,
@@ -233,6 +238,8 @@ class KdTree(Accelerator):
         counts = k.count[leaf]
         areas = box_area(self._cells[:, :3], self._cells[:, 3:])
         nonempty = int(np.count_nonzero(counts))
+        over_leaf_size = counts > self.options["leaf_size"]
+        at_depth_limit = over_leaf_size & (self._depth[leaf] >= self.options["max_depth"])
         result = {
             "nodes": k.n_nodes,
             "leaves": int(leaf.sum()),
@@ -240,6 +247,9 @@ class KdTree(Accelerator):
             "max_depth": self.max_depth,
             "references": len(k.leaf_prims),
             "avg_prims_per_nonempty_leaf": float(counts.sum()) / max(nonempty, 1),
+            "leaves_at_leaf_size": int(np.count_nonzero(counts[~over_leaf_size])),
+            "leaves_at_depth_limit": int(at_depth_limit.sum()),
+            "leaves_by_cost": int(over_leaf_size.sum() - at_depth_limit.sum()),
             "bytes": k.nbytes + self.scene.geometry.nbytes,
         }
         sa = surface_area_stats(areas[0], step_areas=areas[~leaf], leaf_areas=areas[leaf], leaf_counts=counts,
