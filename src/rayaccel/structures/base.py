@@ -86,6 +86,8 @@ class Accelerator:
     """
 
     method = "?"
+    build_bytes_per_primitive = 400
+    """Upper bound on the memory a build takes per primitive, checked before it starts."""
 
     def __init__(self, scene: TriangleMesh | Spheres, options: dict):
         self.scene = scene

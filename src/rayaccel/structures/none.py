@@ -43,6 +43,7 @@ class BruteForce(Accelerator):
     """
 
     method = "none"
+    build_bytes_per_primitive = 16
 
     def __init__(self, scene):
         super().__init__(scene, {})

@@ -39,6 +39,7 @@ class HierarchicalGrid(Accelerator):
     """
 
     method = "hgrid"
+    build_bytes_per_primitive = 700
 
     def __init__(self, scene, *, density=0.5, threshold=4, max_levels=3, insert="bbox", mailbox=True):
         if insert not in _INSERT_MODES:

@@ -40,6 +40,7 @@ class GridBvh(Accelerator):
     """
 
     method = "grid-bvh"
+    build_bytes_per_primitive = 700
 
     def __init__(self, scene, *, density=0.5, threshold=8, max_leaf_size=4, bins=16, traversal_cost=3.0,
                  intersection_cost=1.0, insert="bbox", mailbox=True):

@@ -144,6 +144,7 @@ class KdTree(Accelerator):
     """
 
     method = "kdtree"
+    build_bytes_per_primitive = 1200
 
     def __init__(self, scene, *, traversal_cost=1.0, intersection_cost=1.33, empty_bonus=0.2, leaf_size=4,
                  max_depth=None, bins=64, exact_below=4096, threads=None):

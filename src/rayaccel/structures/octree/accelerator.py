@@ -39,6 +39,7 @@ class Octree(Accelerator):
     """
 
     method = "octree"
+    build_bytes_per_primitive = 1000
 
     def __init__(self, scene, *, leaf_size=8, max_depth=None, insert="exact"):
         if insert not in _INSERT_MODES:
