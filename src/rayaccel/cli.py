@@ -201,7 +201,7 @@ def _cmd_demo(args) -> None:
     from rich.table import Table
 
     from ._progress import progress_bar, table_console
-    from .render import warm_up
+    from .precompile import compile_kernels
     from .structures.registry import methods
 
     console = table_console()
@@ -211,9 +211,9 @@ def _cmd_demo(args) -> None:
     table.add_column("method", no_wrap=True, min_width=len(max(methods(), key=len)))
     for column in ("build s", "image", "Mrays/s", "cells or nodes/ray", "tests/ray", "shadow Mrays/s"):
         table.add_column(column, justify="right")
-    with progress_bar("compiling kernels (first run only, then cached)", len(methods()),
+    with progress_bar("compiling kernels on every core (first run only, then cached)", len(methods()),
                       enabled=not args.quiet) as advance:
-        warm_up(methods(), [scene.kind], progress=advance)
+        compile_kernels(methods(), [scene.kind], progress=advance)
     written = []
     for method in methods():
         accel = _build(scene, method, {}, args.quiet)
@@ -320,6 +320,28 @@ def _cmd_calibrate(args) -> None:
         print(f"note: {RATIO_VARIABLE} is set, and grids use its ratio instead")
 
 
+def _cmd_compile(args) -> None:
+    import time
+
+    from ._progress import progress_bar
+    from .precompile import compile_kernels, default_workers
+    from .scene import SPHERE, TRIANGLE
+    from .structures.registry import methods
+
+    chosen = args.methods or methods()
+    unknown = sorted(set(chosen) - set(methods()))
+    if unknown:
+        raise CliError(f"unknown method(s) {', '.join(unknown)}; choose from {', '.join(methods())}")
+    kinds = [{"triangles": TRIANGLE, "spheres": SPHERE}[kind] for kind in args.kinds]
+    workers = args.workers or default_workers()
+    start = time.perf_counter()
+    with progress_bar(f"compiling the kernels of {len(chosen)} method(s) on {workers} process(es)", len(chosen),
+                      enabled=not args.quiet) as advance:
+        compile_kernels(chosen, kinds, workers, progress=advance)
+    print(f"kernels of {', '.join(chosen)} for {' and '.join(args.kinds)} compiled or found in the cache "
+          f"in {time.perf_counter() - start:.1f} s")
+
+
 def _cmd_methods(args) -> None:
     from .catalog import builtin_scenes
     from .structures.registry import build_class, methods
@@ -395,6 +417,13 @@ def _parser() -> argparse.ArgumentParser:
 
     calibrate = sub.add_parser("calibrate", help="measure C_i and C_c for the grid cost model")
     calibrate.set_defaults(func=_cmd_calibrate)
+
+    compile_ = sub.add_parser("compile", help="compile the kernels of methods into the cache, on every core")
+    compile_.add_argument("methods", nargs="*", metavar="METHOD", help="methods to compile (default: all)")
+    compile_.add_argument("--kinds", nargs="+", choices=["triangles", "spheres"], default=["triangles", "spheres"],
+                          help="primitive kinds to compile for (default: both)")
+    compile_.add_argument("--workers", type=int, help="processes (default: one per core)")
+    compile_.set_defaults(func=_cmd_compile)
 
     listing = sub.add_parser("methods", help="list methods and built-in scenes")
     listing.set_defaults(func=_cmd_methods)
