@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import math
 
-from .._jit import inline_kernel
+from .._jit import inline_kernel, kernel
 from .kinds import TRIANGLE
 
 __all__ = ["closest_on_triangle", "closest_on_sphere", "closest_on_prim", "distance2_to_prim"]
@@ -133,10 +133,11 @@ def closest_on_prim(kind, geom, row, px, py, pz):
     return closest_on_sphere(geom[row, 0], geom[row, 1], geom[row, 2], geom[row, 3], px, py, pz)
 
 
-@inline_kernel
+@kernel
 def distance2_to_prim(kind, geom, row, px, py, pz):
     """Squared distance from the point to primitive row ``row``: :func:`closest_on_prim`'s first
-    value, without a sphere's texture coordinates."""
+    value, without a sphere's texture coordinates. Not inlined at Numba's IR level: every
+    walk calls it from several places, and inlining it there multiplied their compile times."""
     if kind == TRIANGLE:
         return closest_on_prim(kind, geom, row, px, py, pz)[0]
     fx, fy, fz = px - geom[row, 0], py - geom[row, 1], pz - geom[row, 2]

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 from numba import prange
 
-from ..._jit import inline_kernel, parallel_kernel, thread_id
+from ..._jit import inline_kernel, kernel, parallel_kernel, thread_id
 from ..point_actions import box_distance2, nearest_in_refs
 
 __all__ = ["bvh_nearest", "bvh_nearest_kernel"]
@@ -29,7 +29,7 @@ def _node_distance2(node_box, node, px, py, pz):
                          node_box[node, 4], node_box[node, 5], px, py, pz)
 
 
-@inline_kernel
+@kernel
 def bvh_nearest(node_box, node_first, node_count, refs, in_leaf_order, root, kind, geom, px, py, pz, best_d2,
                 best_prim, stack_node, stack_d2, tid):
     """Closest primitive ``(d2, prim)`` under ``root`` within the running best ``(best_d2, best_prim)``;
