@@ -304,6 +304,26 @@ def _cmd_experiment(args) -> None:
     print(f"wrote {table} and {plot}")
 
 
+def _cmd_sdf(args) -> None:
+    from ._progress import progress_bar
+    from .sdf import sample_signed_distance, write_slices
+
+    accel = _accelerator(args)
+    if args.resolution < 2:
+        raise CliError(f"--resolution must be at least 2, got {args.resolution}")
+    start = time.perf_counter()
+    with progress_bar(f"signed distance, {args.resolution} samples a side", args.resolution,
+                      enabled=not args.quiet) as advance:
+        sdf, lo, spacing = sample_signed_distance(accel, args.resolution, args.pad, progress=advance)
+    seconds = time.perf_counter() - start
+    out = Path(args.out)
+    np.save(out, sdf)
+    png = write_slices(sdf, lo, spacing, out.with_suffix(".png"), f"{args.scene}: signed distance")
+    print(f"wrote {out} {sdf.shape} (origin {lo.tolist()}, spacing {spacing:.6g}) and {png}")
+    print(f"{sdf.size:,} samples in {seconds:.2f} s ({sdf.size / seconds / 1e6:.2f} M/s), "
+          f"{np.count_nonzero(sdf < 0):,} inside")
+
+
 def _cmd_calibrate(args) -> None:
     from .scene import SPHERE, TRIANGLE
     from .structures.grid.calibrate import RATIO_VARIABLE, cache_path, calibration
@@ -381,6 +401,15 @@ def _parser() -> argparse.ArgumentParser:
     build.add_argument("-o", "--option", action="append", help="structure option key=value (repeatable)")
     build.add_argument("--out", required=True, help="file to write (an uncompressed .npz, see rayaccel.persist)")
     build.set_defaults(func=_cmd_build)
+
+    sdf = sub.add_parser("sdf", help="sample the signed distance on a grid; write .npy and a PNG of slices")
+    sdf.add_argument("scene", help="mesh file, built-in scene name, spheres:N, or a saved accelerator")
+    sdf.add_argument("--method", default="bvh-binned")
+    sdf.add_argument("-o", "--option", action="append", help="structure option key=value (repeatable)")
+    sdf.add_argument("--resolution", type=int, default=128, help="samples along the box's longest side")
+    sdf.add_argument("--pad", type=float, default=0.05, help="margin around the box, fraction of its size")
+    sdf.add_argument("--out", default="sdf.npy", help=".npy file to write; the PNG goes beside it")
+    sdf.set_defaults(func=_cmd_sdf)
 
     experiment = sub.add_parser("experiment", help="reproduce a lecture experiment")
     experiment.add_argument("name", choices=["grid-vs-none", "grid-resolution", "bvh", "bounding-volumes",
