@@ -284,6 +284,13 @@ def _cmd_experiment(args) -> None:
         with progress_bar(f"every structure on {scene}", len(chosen), enabled=not args.quiet) as advance:
             rows = structures.run(scene, chosen, side=args.size, out_dir=Path(args.out), progress=advance)
         table, plot = structures.write_report(rows, args.out, args.size)
+    elif args.name == "queries":
+        from .experiments import queries
+
+        scene = (args.scenes or ["dragon-203k"])[0]
+        with progress_bar("point queries", 3, enabled=not args.quiet) as advance:
+            rows, builds = queries.run(scene, n=args.points, progress=advance)
+        table, plot = queries.write_report(rows, builds, args.out, scene, 3)
     elif args.name == "leaf-size":
         from .experiments import leaf_size
 
@@ -413,7 +420,8 @@ def _parser() -> argparse.ArgumentParser:
 
     experiment = sub.add_parser("experiment", help="reproduce a lecture experiment")
     experiment.add_argument("name", choices=["grid-vs-none", "grid-resolution", "bvh", "bounding-volumes",
-                                             "kdtree-table", "structures", "leaf-size"])
+                                             "kdtree-table", "structures", "leaf-size", "queries"])
+    experiment.add_argument("--points", type=int, default=262_144, help="queries: query points")
     experiment.add_argument("--max-n", type=int, default=1_000_000, help="grid-vs-none: largest scene size")
     experiment.add_argument("--scenes", nargs="+", help="scenes to measure (structures: one scene)")
     experiment.add_argument("--method", help="kdtree-table: the structure tabulated (default kdtree)")
