@@ -284,6 +284,13 @@ def _cmd_experiment(args) -> None:
         with progress_bar(f"every structure on {scene}", len(chosen), enabled=not args.quiet) as advance:
             rows = structures.run(scene, chosen, side=args.size, out_dir=Path(args.out), progress=advance)
         table, plot = structures.write_report(rows, args.out, args.size)
+    elif args.name == "queries":
+        from .experiments import queries
+
+        scene = (args.scenes or ["dragon-203k"])[0]
+        with progress_bar("point queries", 3, enabled=not args.quiet) as advance:
+            rows, builds = queries.run(scene, n=args.points, progress=advance)
+        table, plot = queries.write_report(rows, builds, args.out, scene, 3)
     elif args.name == "leaf-size":
         from .experiments import leaf_size
 
@@ -302,6 +309,26 @@ def _cmd_experiment(args) -> None:
         table, plot = bounding_volumes.write_report(rows, args.out, args.size)
     print(table.read_text())
     print(f"wrote {table} and {plot}")
+
+
+def _cmd_sdf(args) -> None:
+    from ._progress import progress_bar
+    from .sdf import sample_signed_distance, write_slices
+
+    accel = _accelerator(args)
+    if args.resolution < 2:
+        raise CliError(f"--resolution must be at least 2, got {args.resolution}")
+    start = time.perf_counter()
+    with progress_bar(f"signed distance, {args.resolution} samples a side", args.resolution,
+                      enabled=not args.quiet) as advance:
+        sdf, lo, spacing = sample_signed_distance(accel, args.resolution, args.pad, progress=advance)
+    seconds = time.perf_counter() - start
+    out = Path(args.out)
+    np.save(out, sdf)
+    png = write_slices(sdf, lo, spacing, out.with_suffix(".png"), f"{args.scene}: signed distance")
+    print(f"wrote {out} {sdf.shape} (origin {lo.tolist()}, spacing {spacing:.6g}) and {png}")
+    print(f"{sdf.size:,} samples in {seconds:.2f} s ({sdf.size / seconds / 1e6:.2f} M/s), "
+          f"{np.count_nonzero(sdf < 0):,} inside")
 
 
 def _cmd_calibrate(args) -> None:
@@ -404,9 +431,19 @@ def _parser() -> argparse.ArgumentParser:
     build.add_argument("--out", required=True, help="file to write (an uncompressed .npz, see rayaccel.persist)")
     build.set_defaults(func=_cmd_build)
 
+    sdf = sub.add_parser("sdf", help="sample the signed distance on a grid; write .npy and a PNG of slices")
+    sdf.add_argument("scene", help="mesh file, built-in scene name, spheres:N, or a saved accelerator")
+    sdf.add_argument("--method", default="bvh-binned")
+    sdf.add_argument("-o", "--option", action="append", help="structure option key=value (repeatable)")
+    sdf.add_argument("--resolution", type=int, default=128, help="samples along the box's longest side")
+    sdf.add_argument("--pad", type=float, default=0.05, help="margin around the box, fraction of its size")
+    sdf.add_argument("--out", default="sdf.npy", help=".npy file to write; the PNG goes beside it")
+    sdf.set_defaults(func=_cmd_sdf)
+
     experiment = sub.add_parser("experiment", help="reproduce a lecture experiment")
     experiment.add_argument("name", choices=["grid-vs-none", "grid-resolution", "bvh", "bounding-volumes",
-                                             "kdtree-table", "structures", "leaf-size"])
+                                             "kdtree-table", "structures", "leaf-size", "queries"])
+    experiment.add_argument("--points", type=int, default=262_144, help="queries: query points")
     experiment.add_argument("--max-n", type=int, default=1_000_000, help="grid-vs-none: largest scene size")
     experiment.add_argument("--scenes", nargs="+", help="scenes to measure (structures: one scene)")
     experiment.add_argument("--method", help="kdtree-table: the structure tabulated (default kdtree)")

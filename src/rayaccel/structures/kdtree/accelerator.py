@@ -17,6 +17,7 @@ from ..grid.build_uniform import grid_box
 from .build_sah_binned import build_binned_top
 from .build_sah_events import build_subtrees
 from .layout import LEAF, KdTreeArrays, node_cells
+from .nearest import kdtree_nearest_kernel
 from .traverse import kdtree_trace_kernel
 
 __all__ = ["KdTree"]
@@ -232,6 +233,15 @@ class KdTree(Accelerator):
         stack_t = np.empty((rows, self.max_depth + 2, 2))
         kdtree_trace_kernel(k.lo, k.hi, k.node_split, k.node_link, k.leaf_prims, self.scene.kind, self.scene.geometry,
                             *batch, any_hit, stack_node, stack_t, t, prim, u, v, work)
+
+    def _nearest(self, points, limit_d2, out_d2, out_prim):
+        """Near side of each plane first (:mod:`.nearest`)."""
+        k = self.kd
+        rows, depth = numba.config.NUMBA_NUM_THREADS, self.max_depth + 2
+        pad = 1e-9 * float(np.abs(k.lo).max() + np.abs(k.hi).max() + (k.hi - k.lo).max())
+        kdtree_nearest_kernel(k.lo, k.hi, k.node_split, k.node_link, k.leaf_prims, self.scene.kind,
+                              self.scene.geometry, pad, points, limit_d2, np.empty((rows, depth), dtype=np.int32),
+                              np.empty((rows, depth)), np.empty((rows, depth, 6)), out_d2, out_prim)
 
     def _structure_stats(self) -> dict:
         k = self.kd
