@@ -6,11 +6,15 @@ import os
 
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, settings
 
 # The grid cost model's C_i / C_c is a measurement; tests pin it so that no result depends on a timing.
 os.environ["RAYACCEL_GRID_COST_RATIO"] = "triangle=2.6,sphere=1.0"
 
 import rayaccel as ra  # noqa: E402
+
+# ``pytest --hypothesis-profile=long`` searches the property-based tests far deeper than CI does.
+settings.register_profile("long", max_examples=2000, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 
 
 @pytest.fixture(scope="session")

@@ -131,3 +131,71 @@ def test_unreadable_files(tmp_path):
         ra.load_mesh(42)
     with pytest.raises(ValueError, match="unknown scene"):
         ra.load_scene("no-such-scene")
+
+
+@pytest.mark.parametrize(
+    "vertices, faces, error, words",
+    [
+        (np.float64(1.0), [[0, 1, 2]], ValueError, "shape"),
+        (np.zeros((1, 1, 3, 3)), [[0, 1, 2]], ValueError, "shape"),
+        (TRIANGLE.astype(object), [[0, 1, 2]], TypeError, "real numbers"),
+        (TRIANGLE, np.array([[0, 1, 2**40]]), ValueError, "out of range"),
+        (TRIANGLE, np.array([[0, 1, 2**63 + 5]], dtype=np.uint64), ValueError, "out of range"),
+        (TRIANGLE, np.int64(0), ValueError, "shape"),
+    ],
+)
+def test_hostile_meshes(vertices, faces, error, words):
+    with pytest.raises(error, match=words):
+        ra.TriangleMesh(vertices, faces)
+
+
+@pytest.mark.parametrize(
+    "origins, directions, error, words",
+    [
+        (np.float64(0.0), [[0, 0, 1.0]], ValueError, "shape"),
+        (np.zeros((1, 1, 1, 3)), [[0, 0, 1.0]], ValueError, "shape"),
+        (np.array([[0.2, 0.2, -1.0]], dtype=object), [[0, 0, 1.0]], TypeError, "real numbers"),
+    ],
+)
+def test_hostile_rays(accel, origins, directions, error, words):
+    with pytest.raises(error, match=words):
+        accel.intersect(origins, directions)
+
+
+def test_read_only_and_strided_inputs_give_the_contiguous_answer():
+    rng = np.random.default_rng(0)
+    vertices = rng.random((40, 3))
+    faces = rng.integers(0, 40, (30, 3))
+    origins, directions = rng.random((50, 3)) - 1.0, rng.normal(size=(50, 3))
+    expected = ra.build(ra.TriangleMesh(vertices, faces), "bvh-binned").intersect(origins, directions)
+
+    def read_only(a):
+        a = a.copy()
+        a.setflags(write=False)
+        return a
+
+    def strided(a):
+        wide = np.zeros((2 * a.shape[0], *a.shape[1:]), dtype=a.dtype)
+        wide[::2] = a
+        return wide[::2]
+
+    for variant in (read_only, strided, np.asfortranarray):
+        mesh = ra.TriangleMesh(variant(vertices), variant(faces))
+        hits = ra.build(mesh, "bvh-binned").intersect(variant(origins), variant(directions),
+                                                      t_min=variant(np.zeros(50)))
+        np.testing.assert_array_equal(hits.prim, expected.prim)
+        np.testing.assert_array_equal(hits.t, expected.t)
+
+
+def test_a_build_larger_than_the_free_memory_is_refused_before_it_starts(monkeypatch):
+    import rayaccel._memory as memory
+
+    monkeypatch.setattr(memory, "available_bytes", lambda: 10_000)
+    mesh = ra.TriangleMesh(np.random.default_rng(0).random((300, 3)), np.arange(300).reshape(100, 3))
+    for method in ("bvh-binned", "kdtree", "grid"):
+        with pytest.raises(MemoryError, match=r"building '.+' over 100 primitives needs about .* GiB"):
+            ra.build(mesh, method)
+    scene = ra.Scene()
+    scene.add(mesh)
+    with pytest.raises(MemoryError, match="GiB"):
+        ra.build(scene, "bvh-binned")

@@ -67,6 +67,12 @@ def check_ray_arrays(origins: np.ndarray, directions: np.ndarray) -> None:
                          f"(first at index {first_zero_row(directions)})")
 
 
+def _owned(array: np.ndarray) -> np.ndarray:
+    """``array``, copied when it is read-only: kernels then see one array type, writable,
+    instead of compiling a read-only variant of themselves on first use."""
+    return array if array.flags.writeable else array.copy()
+
+
 def as_points(name: str, values, *, allow_empty: bool = False, check_finite: bool = True) -> np.ndarray:
     """``values`` as a C-contiguous float64 (n, 3) array, of finite coordinates unless
     ``check_finite`` is False (the caller checks them later)."""
@@ -84,7 +90,7 @@ def as_points(name: str, values, *, allow_empty: bool = False, check_finite: boo
         raise ValueError(f"{name} must have shape (n, 3), got {array.shape}")
     if array.shape[0] == 0 and not allow_empty:
         raise ValueError(f"{name} is empty")
-    array = np.ascontiguousarray(array, dtype=np.float64)
+    array = _owned(np.ascontiguousarray(array, dtype=np.float64))
     if check_finite and _first_nonfinite_row(array) >= 0:
         raise _nonfinite_error(name, array, int((~np.isfinite(array).all(axis=1)).sum()))
     return array
@@ -102,7 +108,7 @@ def as_index_triples(name: str, values, n_vertices: int) -> np.ndarray:
         raise ValueError(f"{name} must have shape (n, 3), got {array.shape}")
     if array.shape[0] == 0:
         raise ValueError(f"{name} is empty: a scene needs at least one triangle")
-    array = np.ascontiguousarray(array, dtype=np.int64)
+    array = _owned(np.ascontiguousarray(array, dtype=np.int64))
     low, high = int(array.min()), int(array.max())
     if low < 0 or high >= n_vertices:
         bad = low if low < 0 else high
@@ -122,7 +128,7 @@ def as_per_ray(name: str, value, n_rays: int) -> np.ndarray:
         return np.full(n_rays, float(array))
     if array.shape != (n_rays,):
         raise ValueError(f"{name} must be a scalar or have shape ({n_rays},), got {array.shape}")
-    array = np.ascontiguousarray(array)
+    array = _owned(np.ascontiguousarray(array))
     if np.isnan(array).any():
         raise ValueError(f"{name} contains NaN")
     return array

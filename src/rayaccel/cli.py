@@ -201,7 +201,7 @@ def _cmd_demo(args) -> None:
     from rich.table import Table
 
     from ._progress import progress_bar, table_console
-    from .render import warm_up
+    from .precompile import compile_kernels
     from .structures.registry import methods
 
     console = table_console()
@@ -211,9 +211,9 @@ def _cmd_demo(args) -> None:
     table.add_column("method", no_wrap=True, min_width=len(max(methods(), key=len)))
     for column in ("build s", "image", "Mrays/s", "cells or nodes/ray", "tests/ray", "shadow Mrays/s"):
         table.add_column(column, justify="right")
-    with progress_bar("compiling kernels (first run only, then cached)", len(methods()),
+    with progress_bar("compiling kernels on every core (first run only, then cached)", len(methods()),
                       enabled=not args.quiet) as advance:
-        warm_up(methods(), [scene.kind], progress=advance)
+        compile_kernels(methods(), [scene.kind], progress=advance)
     written = []
     for method in methods():
         accel = _build(scene, method, {}, args.quiet)
@@ -248,6 +248,8 @@ def _cmd_experiment(args) -> None:
         options = {"max_n": args.max_n, "client": client} if args.name == "grid-vs-none" else {}
         if args.name == "kdtree-table":
             options["method"] = args.method
+        if args.name == "queries":
+            options["points"] = args.points
         written = runner.run(args.name, args.out, args.size, args.scenes, progress, args.quick, **options)
     print(written.table.read_text())
     print(f"wrote {written.table} and {written.plot}"
@@ -261,6 +263,26 @@ def _cmd_report(args) -> None:
     out = write_report(args.out, quick=args.quick, bench_results=args.bench_results, size=args.size,
                        show_progress=not args.quiet)
     print(f"wrote {out} ({out.stat().st_size / 1e6:.1f} MB) in {time.perf_counter() - start:.0f} s")
+
+
+def _cmd_sdf(args) -> None:
+    from ._progress import progress_bar
+    from .sdf import sample_signed_distance, write_slices
+
+    accel = _accelerator(args)
+    if args.resolution < 2:
+        raise CliError(f"--resolution must be at least 2, got {args.resolution}")
+    start = time.perf_counter()
+    with progress_bar(f"signed distance, {args.resolution} samples a side", args.resolution,
+                      enabled=not args.quiet) as advance:
+        sdf, lo, spacing = sample_signed_distance(accel, args.resolution, args.pad, progress=advance)
+    seconds = time.perf_counter() - start
+    out = Path(args.out)
+    np.save(out, sdf)
+    png = write_slices(sdf, lo, spacing, out.with_suffix(".png"), f"{args.scene}: signed distance")
+    print(f"wrote {out} {sdf.shape} (origin {lo.tolist()}, spacing {spacing:.6g}) and {png}")
+    print(f"{sdf.size:,} samples in {seconds:.2f} s ({sdf.size / seconds / 1e6:.2f} M/s), "
+          f"{np.count_nonzero(sdf < 0):,} inside")
 
 
 def _cmd_calibrate(args) -> None:
@@ -277,6 +299,28 @@ def _cmd_calibrate(args) -> None:
     print(f"cached in {cache_path()}")
     if os.environ.get(RATIO_VARIABLE):
         print(f"note: {RATIO_VARIABLE} is set, and grids use its ratio instead")
+
+
+def _cmd_compile(args) -> None:
+    import time
+
+    from ._progress import progress_bar
+    from .precompile import compile_kernels, default_workers
+    from .scene import SPHERE, TRIANGLE
+    from .structures.registry import methods
+
+    chosen = args.methods or methods()
+    unknown = sorted(set(chosen) - set(methods()))
+    if unknown:
+        raise CliError(f"unknown method(s) {', '.join(unknown)}; choose from {', '.join(methods())}")
+    kinds = [{"triangles": TRIANGLE, "spheres": SPHERE}[kind] for kind in args.kinds]
+    workers = args.workers or default_workers()
+    start = time.perf_counter()
+    with progress_bar(f"compiling the kernels of {len(chosen)} method(s) on {workers} process(es)", len(chosen),
+                      enabled=not args.quiet) as advance:
+        compile_kernels(chosen, kinds, workers, progress=advance)
+    print(f"kernels of {', '.join(chosen)} for {' and '.join(args.kinds)} compiled or found in the cache "
+          f"in {time.perf_counter() - start:.1f} s")
 
 
 def _cmd_methods(args) -> None:
@@ -343,10 +387,20 @@ def _parser() -> argparse.ArgumentParser:
     build.add_argument("--out", required=True, help="file to write (an uncompressed .npz, see rayaccel.persist)")
     build.set_defaults(func=_cmd_build)
 
+    sdf = sub.add_parser("sdf", help="sample the signed distance on a grid; write .npy and a PNG of slices")
+    sdf.add_argument("scene", help="mesh file, built-in scene name, spheres:N, or a saved accelerator")
+    sdf.add_argument("--method", default="bvh-binned")
+    sdf.add_argument("-o", "--option", action="append", help="structure option key=value (repeatable)")
+    sdf.add_argument("--resolution", type=int, default=128, help="samples along the box's longest side")
+    sdf.add_argument("--pad", type=float, default=0.05, help="margin around the box, fraction of its size")
+    sdf.add_argument("--out", default="sdf.npy", help=".npy file to write; the PNG goes beside it")
+    sdf.set_defaults(func=_cmd_sdf)
+
     experiment = sub.add_parser("experiment", help="reproduce a lecture experiment")
     experiment.add_argument("name", choices=runner_names())
     experiment.add_argument("--quick", action="store_true",
                             help="small scenes, sizes and sweeps: a first look in seconds, not the lecture's figures")
+    experiment.add_argument("--points", type=int, help="queries: query points (default 262,144)")
     experiment.add_argument("--max-n", type=int, help="grid-vs-none: largest scene size (default 1,000,000)")
     experiment.add_argument("--scenes", nargs="+", help="scenes to measure (structures: one scene)")
     experiment.add_argument("--method", help="kdtree-table: the structure tabulated (default kdtree)")
@@ -366,6 +420,13 @@ def _parser() -> argparse.ArgumentParser:
 
     calibrate = sub.add_parser("calibrate", help="measure C_i and C_c for the grid cost model")
     calibrate.set_defaults(func=_cmd_calibrate)
+
+    compile_ = sub.add_parser("compile", help="compile the kernels of methods into the cache, on every core")
+    compile_.add_argument("methods", nargs="*", metavar="METHOD", help="methods to compile (default: all)")
+    compile_.add_argument("--kinds", nargs="+", choices=["triangles", "spheres"], default=["triangles", "spheres"],
+                          help="primitive kinds to compile for (default: both)")
+    compile_.add_argument("--workers", type=int, help="processes (default: one per core)")
+    compile_.set_defaults(func=_cmd_compile)
 
     listing = sub.add_parser("methods", help="list methods and built-in scenes")
     listing.set_defaults(func=_cmd_methods)

@@ -2,8 +2,10 @@
 
 Dask (https://docs.dask.org) is the optional engine (``pip install "rayaccel[dask]"``): ``dask.array``
 holds the ray batches, ``distributed`` runs them on a cluster. This module only calls the public
-queries (:meth:`Accelerator.intersect`, :meth:`Accelerator.occluded`) and the renderer's
-:func:`rayaccel.render.render_pixels`, one call per chunk of rays or tile of pixels.
+queries (:meth:`Accelerator.intersect`, :meth:`Accelerator.occluded` and the point queries
+:meth:`closest_point`, :meth:`distance`, :meth:`winding_number`, :meth:`contains`,
+:meth:`signed_distance`) and the renderer's :func:`rayaccel.render.render_pixels`, one call per chunk of
+rays or tile of pixels.
 
 The structure travels once. With a ``distributed.Client`` active, the accelerator is scattered to
 every worker (``Client.scatter(..., broadcast=True)``, which Dask's best practices recommend for
@@ -31,10 +33,12 @@ import weakref
 import numpy as np
 
 from ._jit import max_threads, set_threads, thread_count
+from .points import ClosestPoints, check_accuracy, check_max_distance
 from .rays import Hits, RayCounters
 from .render import _BAND_ROWS, RenderResult, assemble, default_camera, default_lights, render_pixels
 
-__all__ = ["is_dask_array", "intersect", "occluded", "ship", "connect", "render"]
+__all__ = ["is_dask_array", "intersect", "occluded", "closest_point", "distance", "winding_number", "contains",
+           "signed_distance", "ship", "connect", "render"]
 
 _INSTALL = 'pip install "rayaccel[dask]"'
 _HIT_FIELDS = [("t", np.float64), ("prim", np.int64), ("u", np.float64), ("v", np.float64), ("geom", np.int64)]
@@ -239,6 +243,77 @@ def occluded(accel, origins, directions, t_min=0.0, t_max=np.inf, *, reorder=Tru
     """:meth:`Accelerator.occluded` on Dask arrays: a lazy (n,) bool Dask array chunked as the rays
     (inputs and ``kernel_threads`` as for :func:`intersect`)."""
     return _query(accel, "occluded", origins, directions, t_min, t_max, dict(reorder=bool(reorder)), kernel_threads)
+
+
+_CLOSEST_FIELDS = [("x", np.float64), ("y", np.float64), ("z", np.float64), ("distance", np.float64),
+                   ("prim", np.int64), ("u", np.float64), ("v", np.float64), ("geom", np.int64)]
+_POINT_RESULT = {"distance": np.float64, "winding_number": np.float64, "contains": bool, "signed_distance": np.float64}
+
+
+def _point_block(accel, query, options, threads, points):
+    with _kernel_threads(threads):
+        result = getattr(accel, query)(points, **options)
+    if query != "closest_point":
+        return result
+    packed = np.empty(len(result.distance), dtype=np.dtype(_CLOSEST_FIELDS))
+    for k, name in enumerate("xyz"):
+        packed[name] = result.point[:, k]
+    for name, _ in _CLOSEST_FIELDS[3:]:
+        packed[name] = getattr(result, name)
+    return packed
+
+
+def _point_query(accel, query, points, options, kernel_threads):
+    """One task per chunk of query points calling the public point query ``query``."""
+    da = _require("dask.array")
+    array = points if is_dask_array(points) else np.asarray(points)
+    if array.dtype == object or not (np.issubdtype(array.dtype, np.floating) or np.issubdtype(array.dtype, np.integer)):
+        raise ValueError(f"points must hold real numbers, got dtype {array.dtype}")
+    if array.ndim == 1 and array.shape[0] == 3:
+        array = array[None, :]
+    if array.ndim != 2 or array.shape[1] != 3:
+        raise ValueError(f"points must have shape (n, 3), got {array.shape}")
+    if is_dask_array(array):
+        if _unknown(array.chunks[0]):
+            raise ValueError("points has unknown chunk sizes; call its compute_chunk_sizes() first")
+        rows = array.chunks[0]
+    else:
+        rows = da.core.normalize_chunks("auto", (array.shape[0],), dtype=np.float64)[0]
+    array = _chunked(da, array, (rows, (3,)))
+    meta = np.empty(0, dtype=np.dtype(_CLOSEST_FIELDS) if query == "closest_point" else _POINT_RESULT[query])
+    return da.blockwise(_point_block, "i", ship(accel), None, query, None, options, None, kernel_threads, None,
+                        array, "ij", meta=meta, concatenate=True, name=f"rayaccel-{query}-{uuid.uuid4().hex}")
+
+
+def closest_point(accel, points, max_distance=np.inf, *, kernel_threads="match") -> ClosestPoints:
+    """:meth:`Accelerator.closest_point` on Dask arrays: a :class:`ClosestPoints` of lazy Dask arrays
+    chunked as ``points`` (an (n, 3) Dask array chunked along axis 0, or array_like); compute the
+    fields together, or the chunk is queried once per computation."""
+    da = _require("dask.array")
+    packed = _point_query(accel, "closest_point", points, dict(max_distance=check_max_distance(max_distance)),
+                          kernel_threads)
+    point = da.stack([packed["x"], packed["y"], packed["z"]], axis=1)
+    return ClosestPoints(point, packed["distance"], packed["prim"], packed["u"], packed["v"], packed["geom"])
+
+
+def distance(accel, points, *, kernel_threads="match"):
+    """:meth:`Accelerator.distance` on Dask arrays: a lazy (n,) float64 Dask array chunked as ``points``."""
+    return _point_query(accel, "distance", points, {}, kernel_threads)
+
+
+def winding_number(accel, points, *, accuracy=2.0, kernel_threads="match"):
+    """:meth:`Accelerator.winding_number` on Dask arrays: a lazy (n,) float64 Dask array chunked as ``points``."""
+    return _point_query(accel, "winding_number", points, dict(accuracy=check_accuracy(accuracy)), kernel_threads)
+
+
+def contains(accel, points, *, accuracy=2.0, kernel_threads="match"):
+    """:meth:`Accelerator.contains` on Dask arrays: a lazy (n,) bool Dask array chunked as ``points``."""
+    return _point_query(accel, "contains", points, dict(accuracy=check_accuracy(accuracy)), kernel_threads)
+
+
+def signed_distance(accel, points, *, accuracy=2.0, kernel_threads="match"):
+    """:meth:`Accelerator.signed_distance` on Dask arrays: a lazy (n,) float64 Dask array chunked as ``points``."""
+    return _point_query(accel, "signed_distance", points, dict(accuracy=check_accuracy(accuracy)), kernel_threads)
 
 
 @contextlib.contextmanager

@@ -8,7 +8,7 @@ import numpy as np
 
 from ._validate import as_per_ray, as_points, check_ray_arrays
 
-__all__ = ["RayBatch", "RayCounters", "Hits", "Camera", "prepare_rays"]
+__all__ = ["RayBatch", "RayCounters", "Hits", "Camera", "prepare_rays", "random_lines"]
 
 
 class RayBatch(NamedTuple):
@@ -125,6 +125,24 @@ class Camera:
         distance = radius / np.sin(np.radians(fov) / 2.0) * 1.02
         return cls(center + distance * view / np.linalg.norm(view), center, up, fov)
 
+    @classmethod
+    def filling(cls, points, view=(0.35, 0.3, 1.0), up=(0.0, 1.0, 0.0)) -> Camera:
+        """A camera looking from direction ``view`` whose square image the ``points`` (n, 3)
+        just fill: aimed at the middle of their projection, with the field of view of its
+        larger side (2 % margin), from the distance :meth:`framing` would take."""
+        points = as_points("points", points)
+        lo, hi = points.min(axis=0), points.max(axis=0)
+        camera = cls.framing(lo, hi, view, up)
+        for _ in range(2):
+            relative = points - camera.eye
+            depth = relative @ camera.forward
+            x = (relative @ camera.right) / depth
+            y = (relative @ camera.true_up) / depth
+            middle = (0.5 * (x.min() + x.max())) * camera.right + (0.5 * (y.min() + y.max())) * camera.true_up
+            half = 1.02 * max(x.max() - x.min(), y.max() - y.min()) / 2.0
+            camera = cls(camera.eye, camera.eye + camera.forward + middle, up, float(np.degrees(2.0 * np.arctan(half))))
+        return camera
+
     def rays(self, width: int, height: int, pixels: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Origins and unit directions through pixel centres, row-major from the top left.
 
@@ -141,3 +159,36 @@ class Camera:
         directions /= np.linalg.norm(directions, axis=1, keepdims=True)
         origins = np.broadcast_to(self.eye, directions.shape).copy()
         return origins, directions
+
+
+def random_lines(lo, hi, n: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """``n`` random lines through the box ``[lo, hi]``, as rays that start outside it: origins
+    and unit directions.
+
+    The lines are isotropic and uniform (the measure of integral geometry, Santalo 1976):
+    a direction uniform on the sphere, then a point uniform in the disk that bounds the
+    box's projection along it; lines that miss the box are drawn again. Under this measure
+    a line meets a convex body inside the box with probability proportional to its
+    surface area (Cauchy and Crofton), the probability the surface area heuristic assumes.
+    """
+    lo, hi = np.asarray(lo, float), np.asarray(hi, float)
+    center, radius = 0.5 * (lo + hi), max(0.5 * float(np.linalg.norm(hi - lo)), 1e-300)
+    rng = np.random.default_rng(seed)
+    origins, directions = [], []
+    found = 0
+    while found < n:
+        d = rng.normal(size=(2 * (n - found) + 16, 3))
+        d /= np.linalg.norm(d, axis=1, keepdims=True)
+        offset = rng.normal(size=d.shape)
+        offset -= (offset * d).sum(axis=1, keepdims=True) * d
+        offset *= (radius * np.sqrt(rng.random(len(d))) / np.linalg.norm(offset, axis=1))[:, None]
+        o = center + offset - 2.0 * radius * d
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t0, t1 = (lo - o) / d, (hi - o) / d
+        enter = np.nanmax(np.minimum(t0, t1), axis=1)
+        leave = np.nanmin(np.maximum(t0, t1), axis=1)
+        keep = enter <= leave
+        origins.append(o[keep])
+        directions.append(d[keep])
+        found += int(keep.sum())
+    return np.concatenate(origins)[:n], np.concatenate(directions)[:n]

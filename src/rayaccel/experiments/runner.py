@@ -1,4 +1,4 @@
-"""One runner for every lecture experiment, shared by ``rayaccel experiment NAME`` and ``rayaccel report``.
+"""One runner for every experiment, shared by ``rayaccel experiment NAME`` and ``rayaccel report``.
 
 Each experiment is one function taking ``(out_dir, size, scenes, progress, quick)`` (plus its own
 keyword options) that runs the experiment's module, writes its markdown table and chart into
@@ -151,6 +151,21 @@ def leaf_size(out_dir, size=None, scenes=None, progress=silent, quick=False) -> 
     return Written(*experiment.write_report(rows, out_dir, side))
 
 
+def queries(out_dir, size=None, scenes=None, progress=silent, quick=False, *, points=None) -> Written:
+    """Point queries (closest point, contains, signed distance) against Open3D and trimesh, on one scene;
+    ``size`` does not apply, ``points``: how many query points."""
+    from . import queries as experiment
+
+    if scenes and len(scenes) > 1:
+        raise ValueError("experiment queries takes one scene")
+    scene = scenes[0] if scenes else ("bunny" if quick else "dragon-203k")
+    points = points or (32_768 if quick else 262_144)
+    rounds = 3
+    with progress("point queries", rounds) as advance:
+        rows, builds = experiment.run(scene, n=points, rounds=rounds, progress=advance)
+    return Written(*experiment.write_report(rows, builds, out_dir, scene, rounds))
+
+
 EXPERIMENTS: dict[str, Callable[..., Written]] = {
     "grid-vs-none": grid_vs_none,
     "grid-resolution": grid_resolution,
@@ -159,6 +174,7 @@ EXPERIMENTS: dict[str, Callable[..., Written]] = {
     "kdtree-table": kdtree_table,
     "structures": structures,
     "leaf-size": leaf_size,
+    "queries": queries,
 }
 
 

@@ -34,7 +34,7 @@ from ..structures.hgrid.layout import HierarchicalGridArrays
 from ..structures.hybrid.accelerator import GridBvh
 from ..structures.hybrid.layout import GridBvhArrays
 from ..structures.kdtree.accelerator import KdTree
-from ..structures.kdtree.layout import LEAF, KdTreeArrays, node_cells
+from ..structures.kdtree.layout import LEAF, KdTreeArrays
 from ..structures.none import BruteForce
 from ..structures.octree.accelerator import Octree
 from ..structures.octree.layout import OctreeArrays
@@ -278,8 +278,7 @@ def _load_kdtree(accel, meta, arrays):
     c.single_parents("kd-tree", np.concatenate((parents, parents)), np.concatenate((below, below + 1)), n)
     c.leaf_ranges("kd-tree", link[~inner, 0], count[~inner], len(leaf_prims))
     accel.kd = KdTreeArrays(lo, hi, split, link, leaf_prims)
-    accel._cells, depth = node_cells(lo, hi, split, link)
-    accel.max_depth = int(depth.max())
+    accel._derive_cells()
 
 
 # --- octree -------------------------------------------------------------------------------

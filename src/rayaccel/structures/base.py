@@ -12,6 +12,7 @@ from ..geometry.sphere import sphere_hit_coords
 from ..ray_order import MIN_RAYS, coherent_batch
 from ..rays import Camera, Hits, RayCounters, prepare_rays
 from ..scene import SPHERE, PrimitiveBounds, Spheres, TriangleMesh
+from .point_queries import PointQueries
 
 __all__ = ["Accelerator", "is_closer", "intersect_references", "store_hit", "settled_before", "EXIT_MARGIN"]
 
@@ -76,7 +77,7 @@ def _any_dask(*values) -> bool:
     return any(type(value).__module__.split(".")[0] == "dask" for value in values)
 
 
-class Accelerator:
+class Accelerator(PointQueries):
     """A built acceleration structure over a scene.
 
     Subclasses set :attr:`method`, fill :attr:`build_seconds`, and implement
@@ -86,6 +87,8 @@ class Accelerator:
     """
 
     method = "?"
+    build_bytes_per_primitive = 400
+    """Upper bound on the memory a build takes per primitive, checked before it starts."""
 
     def __init__(self, scene: TriangleMesh | Spheres, options: dict):
         self.scene = scene

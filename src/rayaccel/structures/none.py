@@ -2,13 +2,16 @@
 
 from __future__ import annotations
 
+import numpy as np
 from numba import prange
 
 from .._jit import parallel_kernel
 from ..geometry.primitive import intersect_prim, ray_setup
+from ..geometry.winding import prim_winding
 from .base import Accelerator, is_closer, store_hit
+from .point_actions import nearest_in_refs
 
-__all__ = ["BruteForce", "brute_force_kernel"]
+__all__ = ["BruteForce", "brute_force_kernel", "brute_force_nearest_kernel", "brute_force_winding_kernel"]
 
 
 @parallel_kernel
@@ -35,6 +38,24 @@ def brute_force_kernel(kind, geom, origins, directions, t_min, t_max, hit_slot, 
             work[hit_slot[i], 1] = tests
 
 
+@parallel_kernel
+def brute_force_nearest_kernel(kind, geom, all_prims, points, limit_d2, out_d2, out_prim):
+    """Each point's closest primitive within ``sqrt(limit_d2[i])``, over every primitive."""
+    for i in prange(points.shape[0]):
+        out_d2[i], out_prim[i] = nearest_in_refs(kind, geom, all_prims, 0, all_prims.shape[0], False, points[i, 0],
+                                                 points[i, 1], points[i, 2], limit_d2[i], -1)
+
+
+@parallel_kernel
+def brute_force_winding_kernel(kind, geom, points, out):
+    """The exact winding number at each point: every primitive's share summed."""
+    for i in prange(points.shape[0]):
+        total = 0.0
+        for prim in range(geom.shape[0]):
+            total += prim_winding(kind, geom, prim, points[i, 0], points[i, 1], points[i, 2])
+        out[i] = total
+
+
 class BruteForce(Accelerator):
     """``none``: no acceleration structure; every ray tests every primitive (O(n) per ray).
 
@@ -43,12 +64,23 @@ class BruteForce(Accelerator):
     """
 
     method = "none"
+    build_bytes_per_primitive = 16
 
     def __init__(self, scene):
         super().__init__(scene, {})
 
     def _trace(self, batch, any_hit, t, prim, u, v, work):
         brute_force_kernel(self.scene.kind, self.scene.geometry, *batch, any_hit, t, prim, u, v, work)
+
+    def _nearest(self, points, limit_d2, out_d2, out_prim):
+        """Point queries test every primitive, too; the winding number is the exact sum."""
+        brute_force_nearest_kernel(self.scene.kind, self.scene.geometry, np.arange(len(self.scene)), points, limit_d2,
+                                   out_d2, out_prim)
+
+    def _winding_number(self, points, accuracy):
+        out = np.zeros(len(points))
+        brute_force_winding_kernel(self.scene.kind, self.scene.geometry, points, out)
+        return out
 
     def _structure_stats(self) -> dict:
         n = len(self.scene)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from .._memory import require_memory
 from ..instances import Scene
 from ..scene import Spheres, TriangleMesh
 from .bvh.accelerator import BVH_CLASSES
@@ -47,11 +48,14 @@ def build(scene, method: str = "grid", **options):
     """
     if method not in _METHODS:
         raise ValueError(f"unknown method {method!r}; choose one of {', '.join(_METHODS)}")
+    cls = _METHODS[method]
     if isinstance(scene, Scene):
         from .instanced.accelerator import InstancedScene
 
         scene._require_instances()
-        return InstancedScene(scene, method, [_METHODS[method](obj, **options) for obj in scene.objects], options)
+        require_memory(f"building {method!r} over the scene's objects ({sum(map(len, scene.objects)):,} primitives)",
+                       cls.build_bytes_per_primitive * sum(map(len, scene.objects)))
+        return InstancedScene(scene, method, [cls(obj, **options) for obj in scene.objects], options)
     if not isinstance(scene, (TriangleMesh, Spheres)):
         try:
             import trimesh
@@ -62,7 +66,8 @@ def build(scene, method: str = "grid", **options):
         else:
             raise TypeError("scene must be a TriangleMesh, Spheres, trimesh.Trimesh or Scene, "
                             f"got {type(scene).__name__}")
-    return _METHODS[method](scene, **options)
+    require_memory(f"building {method!r} over {len(scene):,} primitives", cls.build_bytes_per_primitive * len(scene))
+    return cls(scene, **options)
 
 
 def build_class(method: str):

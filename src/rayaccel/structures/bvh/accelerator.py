@@ -14,7 +14,9 @@ from ...stats import surface_area_stats
 from ..base import Accelerator
 from .build_ploc import build_ploc
 from .build_top_down import MORTON, OBJECT_MEDIAN, SAH_BINNED, SAH_SWEEP, SPATIAL_MEDIAN, build_top_down
+from .fast_winding import winding_moments
 from .layout import BvhArrays, node_rows, pack_nodes
+from .nearest import bvh_nearest_kernel
 from .nodes import box_surface_areas, node_depths, sah_cost
 from .refit import refit_bvh
 from .split_morton import morton_codes
@@ -112,6 +114,7 @@ class BoundingVolumeHierarchy(Accelerator):
         that read the collapse from the file) keeps the four-wide collapse in ``_wide_tree`` and
         packs only its boxes."""
         self.pad = pad
+        self._winding_cache = None
         bounds = self.options["bounds"]
         wide = bounds == "aabb" and self.options["width"] == 4
         records = pack_nodes(box[:1], first[:1], count[:1]) if wide else pack_nodes(box, first, count)
@@ -156,6 +159,22 @@ class BoundingVolumeHierarchy(Accelerator):
         bvh_trace_kernel(self.bounds_kind, b.node_records, self._volume_rows, b.node_records.view(np.int32),
                          b.prim_order, self.scene.kind, self.geometry, KDOP_NORMALS, *batch, any_hit, stack_node,
                          stack_t, t, prim, u, v, work)
+
+    def _nearest(self, points, limit_d2, out_d2, out_prim):
+        """The walk by distance of :mod:`.nearest` over the binary tree."""
+        b = self.bvh
+        rows = numba.config.NUMBA_NUM_THREADS
+        bvh_nearest_kernel(b.node_box, b.node_first, b.node_count, b.prim_order, self.scene.kind, self.geometry,
+                           points, limit_d2, np.empty((rows, self.max_depth + 2), dtype=np.int32),
+                           np.empty((rows, self.max_depth + 2)), out_d2, out_prim)
+
+    def _winding_tree(self):
+        """The fast winding number runs on this BVH's own binary tree (moments cached until a refit)."""
+        if self._winding_cache is None:
+            b = self.bvh
+            moments = winding_moments(self.scene.kind, self.geometry, b.node_box, b.node_first, b.node_count)
+            self._winding_cache = (b.node_box, b.node_first, b.node_count, self.geometry, moments, self.max_depth)
+        return self._winding_cache
 
     def volume_areas(self) -> np.ndarray:
         """Surface area of each node's volume (the one the traversal tests)."""

@@ -10,6 +10,7 @@ from ...stats import box_area, surface_area_stats
 from ..base import Accelerator
 from .build_uniform import build_grid, capped_resolution, grid_box, resolution_for
 from .mailbox import MailboxPool
+from .nearest import grid_nearest
 from .traverse import grid_trace_kernel
 
 __all__ = ["UniformGrid"]
@@ -84,6 +85,12 @@ class UniformGrid(Accelerator):
         with self.mailboxes.lend(len(batch.origins)) as (mailbox, base):
             grid_trace_kernel(g.lo, g.hi, g.res, g.cell_size, g.cell_first, g.cell_prims,
                               self.scene.kind, self.scene.geometry, *batch, any_hit, mailbox, base, t, prim, u, v, work)
+
+    def _nearest(self, points, limit_d2, out_d2, out_prim):
+        """Cells searched outward in shells (:mod:`.nearest`)."""
+        g = self.grid
+        grid_nearest(g.lo, g.hi, g.res, g.cell_size, g.cell_first, g.cell_prims, self.scene.kind, self.scene.geometry,
+                     points, limit_d2, out_d2, out_prim)
 
     def _structure_stats(self) -> dict:
         g = self.grid

@@ -11,6 +11,7 @@ from ..._validate import check_number
 from ...stats import box_area, surface_area_stats
 from ..base import Accelerator
 from ..grid.mailbox import MailboxPool
+from ..grid.nearest import grid_nearest
 from .build_nested import build_hierarchical_grid
 from .traverse import hgrid_trace_kernel
 
@@ -39,6 +40,7 @@ class HierarchicalGrid(Accelerator):
     """
 
     method = "hgrid"
+    build_bytes_per_primitive = 700
 
     def __init__(self, scene, *, density=0.5, threshold=4, max_levels=3, insert="bbox", mailbox=True):
         if insert not in _INSERT_MODES:
@@ -68,6 +70,14 @@ class HierarchicalGrid(Accelerator):
             hgrid_trace_kernel(h.lo, h.hi, h.grid_lo, h.grid_res, h.grid_cell_size, h.grid_cell_base, h.cell_child,
                                h.cell_first, h.cell_prims, self.scene.kind, self.scene.geometry, *batch, any_hit,
                                mailbox, base, saved_int, saved_float, t, prim, u, v, work)
+
+    def _nearest(self, points, limit_d2, out_d2, out_prim):
+        """The top grid searched outward in shells, nested grids scanned with pruning (:mod:`..grid.nearest`)."""
+        h = self.hgrid
+        top_hi = h.grid_lo[0] + h.grid_res[0] * h.grid_cell_size[0]
+        grid_nearest(h.grid_lo[0], top_hi, h.grid_res[0], h.grid_cell_size[0], h.cell_first, h.cell_prims,
+                     self.scene.kind, self.scene.geometry, points, limit_d2, out_d2, out_prim,
+                     nested=(h.cell_child, h.grid_lo, h.grid_res, h.grid_cell_size, h.grid_cell_base))
 
     def _structure_stats(self) -> dict:
         h = self.hgrid

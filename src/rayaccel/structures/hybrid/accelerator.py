@@ -11,6 +11,7 @@ from ..._validate import check_number
 from ...stats import box_area, surface_area_stats
 from ..base import Accelerator
 from ..grid.mailbox import MailboxPool
+from ..grid.nearest import grid_nearest
 from .build_grid_bvh import build_grid_bvh
 from .traverse import grid_bvh_trace_kernel
 
@@ -40,6 +41,7 @@ class GridBvh(Accelerator):
     """
 
     method = "grid-bvh"
+    build_bytes_per_primitive = 700
 
     def __init__(self, scene, *, density=0.5, threshold=8, max_leaf_size=4, bins=16, traversal_cost=3.0,
                  intersection_cost=1.0, insert="bbox", mailbox=True):
@@ -75,6 +77,13 @@ class GridBvh(Accelerator):
             grid_bvh_trace_kernel(h.lo, h.hi, h.res, h.cell_size, h.cell_first, h.cell_prims, h.cell_root, h.node_box,
                                   h.node_first, h.node_count, self.scene.kind, self.scene.geometry, *batch, any_hit,
                                   mailbox, base, stack_node, stack_t, t, prim, u, v, work)
+
+    def _nearest(self, points, limit_d2, out_d2, out_prim):
+        """Grid cells searched outward in shells, a dense cell's BVH walked by distance (:mod:`..grid.nearest`)."""
+        h = self.hybrid
+        grid_nearest(h.lo, h.hi, h.res, h.cell_size, h.cell_first, h.cell_prims, self.scene.kind, self.scene.geometry,
+                     points, limit_d2, out_d2, out_prim, cell_root=h.cell_root,
+                     forest=(h.node_box, h.node_first, h.node_count), bvh_depth=self.bvh_depth)
 
     def _structure_stats(self) -> dict:
         h = self.hybrid

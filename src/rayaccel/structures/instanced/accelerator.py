@@ -27,6 +27,7 @@ from ..base import Accelerator
 from ..bvh.build_top_down import SAH_BINNED, build_top_down
 from ..bvh.nodes import node_depths
 from ..bvh.refit import refit_boxes
+from .points import scene_closest_point, scene_nearest, scene_winding_number
 from .walk import instance_candidates, merge_hits, object_rays
 
 __all__ = ["InstancedScene"]
@@ -148,6 +149,16 @@ class InstancedScene(Accelerator):
             merge_hits(ray_k, hits.t, hits.prim, hits.u, hits.v, instance_k, *best, limit)
             if counters:
                 np.add.at(work, ray_k, np.column_stack(hits.counters))
+
+    def _closest_point(self, points, max_distance):
+        """Point queries ask every instance in its frame (:mod:`.points`)."""
+        return scene_closest_point(self, points, max_distance)
+
+    def _nearest_d2(self, points, max_distance):
+        return scene_nearest(self, points, max_distance)[:2]
+
+    def _winding_number(self, points, accuracy):
+        return scene_winding_number(self, points, accuracy)
 
     def _top_stats(self) -> dict:
         box, first, count, _ = self.top

@@ -17,6 +17,7 @@ from ..grid.build_uniform import grid_box
 from .build_sah_binned import build_binned_top
 from .build_sah_events import build_subtrees
 from .layout import LEAF, KdTreeArrays, node_cells
+from .nearest import kdtree_nearest_kernel
 from .traverse import kdtree_trace_kernel
 
 __all__ = ["KdTree"]
@@ -144,6 +145,7 @@ class KdTree(Accelerator):
     """
 
     method = "kdtree"
+    build_bytes_per_primitive = 1200
 
     def __init__(self, scene, *, traversal_cost=1.0, intersection_cost=1.33, empty_bonus=0.2, leaf_size=4,
                  max_depth=None, bins=64, exact_below=4096, threads=None):
@@ -167,7 +169,12 @@ class KdTree(Accelerator):
         start = time.perf_counter()
         self.kd = self._build(scene, threads, **options)
         self.build_seconds = time.perf_counter() - start
+        self._derive_cells()
+
+    def _derive_cells(self) -> None:
+        """The cell and depth of every node, from the built (or loaded) tree."""
         self._cells, depth = node_cells(self.kd.lo, self.kd.hi, self.kd.node_split, self.kd.node_link)
+        self._depth = depth.astype(np.uint8)
         self.max_depth = int(depth.max())
 
     def _build(self, scene, threads, traversal_cost, intersection_cost, empty_bonus, leaf_size, max_depth, bins,
@@ -227,12 +234,23 @@ class KdTree(Accelerator):
         kdtree_trace_kernel(k.lo, k.hi, k.node_split, k.node_link, k.leaf_prims, self.scene.kind, self.scene.geometry,
                             *batch, any_hit, stack_node, stack_t, t, prim, u, v, work)
 
+    def _nearest(self, points, limit_d2, out_d2, out_prim):
+        """Near side of each plane first (:mod:`.nearest`)."""
+        k = self.kd
+        rows, depth = numba.config.NUMBA_NUM_THREADS, self.max_depth + 2
+        pad = 1e-9 * float(np.abs(k.lo).max() + np.abs(k.hi).max() + (k.hi - k.lo).max())
+        kdtree_nearest_kernel(k.lo, k.hi, k.node_split, k.node_link, k.leaf_prims, self.scene.kind,
+                              self.scene.geometry, pad, points, limit_d2, np.empty((rows, depth), dtype=np.int32),
+                              np.empty((rows, depth)), np.empty((rows, depth, 6)), out_d2, out_prim)
+
     def _structure_stats(self) -> dict:
         k = self.kd
         leaf = k.axis == LEAF
         counts = k.count[leaf]
         areas = box_area(self._cells[:, :3], self._cells[:, 3:])
         nonempty = int(np.count_nonzero(counts))
+        over_leaf_size = counts > self.options["leaf_size"]
+        at_depth_limit = over_leaf_size & (self._depth[leaf] >= self.options["max_depth"])
         result = {
             "nodes": k.n_nodes,
             "leaves": int(leaf.sum()),
@@ -240,6 +258,9 @@ class KdTree(Accelerator):
             "max_depth": self.max_depth,
             "references": len(k.leaf_prims),
             "avg_prims_per_nonempty_leaf": float(counts.sum()) / max(nonempty, 1),
+            "leaves_at_leaf_size": int(np.count_nonzero(counts[~over_leaf_size])),
+            "leaves_at_depth_limit": int(at_depth_limit.sum()),
+            "leaves_by_cost": int(over_leaf_size.sum() - at_depth_limit.sum()),
             "bytes": k.nbytes + self.scene.geometry.nbytes,
         }
         sa = surface_area_stats(areas[0], step_areas=areas[~leaf], leaf_areas=areas[leaf], leaf_counts=counts,

@@ -31,6 +31,7 @@ from ..._jit import inline_kernel, kernel
 from ...geometry.clip import CLIP_VERTICES, split_clipped_bounds
 from ..build_arrays import reserve_rows
 from .layout import LEAF, add_children, split_cell
+from .split_cost import split_cost
 
 __all__ = ["build_binned_top"]
 
@@ -79,8 +80,7 @@ def _best_binned_plane(starts, ends, n, cell, bins, traversal_cost, intersection
                 continue
             area_left = e1 * e2 + (p - lo) * (e1 + e2)
             area_right = e1 * e2 + (hi - p) * (e1 + e2)
-            weight = 1.0 - empty_bonus if n_left == 0 or n_right == 0 else 1.0
-            cost = traversal_cost + weight * scale * (area_left * n_left + area_right * n_right)
+            cost = split_cost(traversal_cost, scale, area_left, n_left, area_right, n_right, empty_bonus)
             if cost < best_cost:
                 best_cost, best_axis, best_pos = cost, axis, p
     return best_cost, best_axis, best_pos

@@ -18,11 +18,11 @@ one call builds the subtrees of many cells.
   area ``S`` at a plane with ``N_L``/``N_R`` primitives on the two sides of
   areas ``S_L``/``S_R``::
 
-      C_t + lambda * C_i * (S_L N_L + S_R N_R) / S
+      lambda * (C_t + C_i * (S_L N_L + S_R N_R) / S)
 
-  with ``lambda = 1 - empty_bonus`` when one side is empty (cutting off empty
-  space pays twice: those rays leave early), else 1. Primitives lying in the
-  plane are tried on each side in turn.
+  with ``lambda = 1 - empty_bonus`` when one side is empty, else 1
+  (:mod:`.split_cost`). Primitives lying in the plane are tried on each side in
+  turn.
 * **Termination**: a leaf when ``C_i N`` (not splitting) is no dearer than the
   best split, when ``N <= leaf_size``, or at ``max_depth``.
 * **Perfect splits**: a primitive straddling the plane is clipped to each
@@ -44,6 +44,7 @@ from ...geometry.clip import CLIP_VERTICES, split_clipped_bounds
 from ..build_arrays import reserve_rows
 from .events import END, PLANAR, START, event_before, put_events, sort_events, write_node_events
 from .layout import LEAF, add_children, copy_cell, split_cell
+from .split_cost import split_cost
 
 __all__ = ["build_subtrees"]
 
@@ -74,7 +75,6 @@ def _best_plane(pos, code, first, last, axis, cell, n, traversal_cost, intersect
     scale = 2.0 * intersection_cost / area
     cap = e1 * e2
     ring = e1 + e2
-    empty_weight = 1.0 - empty_bonus
     n_left = 0
     n_right = n
     k = first
@@ -93,15 +93,12 @@ def _best_plane(pos, code, first, last, axis, cell, n, traversal_cost, intersect
         if lo < p < hi:
             area_left = cap + (p - lo) * ring
             area_right = cap + (hi - p) * ring
-            left = n_left + planars
-            weight = empty_weight if left == 0 or n_right == 0 else 1.0
-            cost = traversal_cost + weight * scale * (area_left * left + area_right * n_right)
+            cost = split_cost(traversal_cost, scale, area_left, n_left + planars, area_right, n_right, empty_bonus)
             if cost < best_cost:
                 best_cost, best_pos, best_planar_left = cost, p, True
             if planars > 0:
-                right = n_right + planars
-                weight = empty_weight if n_left == 0 or right == 0 else 1.0
-                cost = traversal_cost + weight * scale * (area_left * n_left + area_right * right)
+                cost = split_cost(traversal_cost, scale, area_left, n_left, area_right, n_right + planars,
+                                  empty_bonus)
                 if cost < best_cost:
                     best_cost, best_pos, best_planar_left = cost, p, False
         n_left += starts + planars

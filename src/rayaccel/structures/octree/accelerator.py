@@ -14,6 +14,7 @@ from ..base import Accelerator
 from ..grid.build_uniform import grid_box
 from .build_adaptive import build_octree
 from .layout import OctreeArrays
+from .nearest import octree_nearest_kernel
 from .traverse import octree_trace_kernel
 
 __all__ = ["Octree"]
@@ -39,6 +40,7 @@ class Octree(Accelerator):
     """
 
     method = "octree"
+    build_bytes_per_primitive = 1000
 
     def __init__(self, scene, *, leaf_size=8, max_depth=None, insert="exact"):
         if insert not in _INSERT_MODES:
@@ -69,6 +71,15 @@ class Octree(Accelerator):
         stack_t = np.empty((rows, 3 * self.max_depth + 4, 2))
         octree_trace_kernel(o.lo, o.hi, o.node_center, o.node_link, o.leaf_prims, self.scene.kind, self.scene.geometry,
                             *batch, any_hit, stack_node, stack_t, t, prim, u, v, work)
+
+    def _nearest(self, points, limit_d2, out_d2, out_prim):
+        """Children nearest first by the distance to their cells (:mod:`.nearest`)."""
+        o = self.tree
+        rows, depth = numba.config.NUMBA_NUM_THREADS, 7 * self.max_depth + 9
+        pad = 1e-9 * float(np.abs(o.lo).max() + np.abs(o.hi).max() + (o.hi - o.lo).max())
+        octree_nearest_kernel(o.lo, o.hi, o.node_center, o.node_link, o.leaf_prims, self.scene.kind,
+                              self.scene.geometry, pad, points, limit_d2, np.empty((rows, depth), dtype=np.int32),
+                              np.empty((rows, depth)), np.empty((rows, depth, 6)), out_d2, out_prim)
 
     def node_cells(self) -> np.ndarray:
         """(n_nodes, 6) cell of every node, lo and hi."""
