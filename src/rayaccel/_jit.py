@@ -31,10 +31,10 @@ import numpy as np
 from llvmlite import ir
 from numba import types
 from numba.core import cgutils
-from numba.extending import intrinsic, overload
+from numba.extending import intrinsic
 
-__all__ = ["kernel", "inline_kernel", "parallel_kernel", "dispatch_kernel", "set_threads", "thread_count",
-           "max_threads", "thread_id", "prefetch", "unsigned"]
+__all__ = ["kernel", "inline_kernel", "parallel_kernel", "set_threads", "thread_count", "max_threads", "thread_id",
+           "prefetch", "unsigned"]
 
 _COMMON = dict(cache=True, nogil=True, error_model="numpy", fastmath=False)
 
@@ -60,20 +60,6 @@ def inline_kernel(func):
 def parallel_kernel(func):
     """Compile ``func`` as a cached kernel whose ``prange`` loops run on all threads."""
     return numba.njit(parallel=True, **_COMMON)(func)
-
-
-def dispatch_kernel(stub):
-    """Give the Python function ``stub`` compiled implementations chosen by argument types.
-
-    Decorates a selector with ``stub``'s parameters that receives Numba types and
-    returns the implementation (a plain Python function with the same parameters)
-    for them, or None. Each implementation is compiled, and inlined into the caller
-    at Numba's IR level, only for the types it is chosen for, so a kernel that
-    passes one kind of argument never compiles the code for another (Numba's
-    ``overload``). The numerics are :func:`kernel`'s; the caching is the caller's.
-    """
-    options = {key: value for key, value in _COMMON.items() if key != "cache"}
-    return overload(stub, inline="never", jit_options=options)
 
 
 def set_threads(n: int) -> None:

@@ -1,24 +1,33 @@
-"""What a walk does with the primitives it meets: the leaf actions every structure's ray walk shares.
+"""What a walk does with the primitives it meets: the leaf action every structure's ray walk shares.
 
 Each structure owns one ray walk (a DDA, a stack traversal); what happens at a
-leaf or cell is a small kernel chosen at compile time by the type of the
-``action`` argument, a NamedTuple of output arrays:
+leaf or cell is :func:`visit_prim`, which branches on the ``mode`` of the
+:class:`Action` it is given (one NamedTuple type for every mode, so each walk
+compiles once, and the branch, the same for every primitive of a batch, is
+predicted):
 
-- :class:`NearestHit` keeps the closest hit (equal distances to the lower
-  primitive index), or stops at the first one for any-hit queries;
-- :class:`HitCount` counts every crossing in ``[t_min, t_max]``;
-- :class:`HitList` writes every crossing into the ray's slots of flat arrays,
-  kept sorted by ``(t, prim)``; once the slots are full it keeps the nearest and
+- ``NEAREST`` keeps the closest hit (equal distances to the lower primitive
+  index), or stops at the first one for any-hit queries;
+- ``COUNT`` counts every crossing in ``[t_min, t_max]``;
+- ``LIST`` writes every crossing into the ray's slots of flat arrays, kept
+  sorted by ``(t, prim)``; once the slots are full it keeps the nearest and
   lowers the walk's search bound to the farthest kept, as a closest-hit walk
   lowers it to its best hit.
 
 A walk carries ``(best_t, best_prim, best_u, best_v)``: its search bound and the
 hit that set it (``best_prim < 0`` while the bound is the interval's end), and
-prunes whatever lies beyond ``best_t``. Counting and collecting test primitives
+prunes whatever lies beyond ``best_t``. Counting and listing test primitives
 with the crossing test (:func:`rayaccel.geometry.primitive.cross_prim`: each
 crossing of a shared edge or vertex given to one triangle, both crossings of a
 sphere); a primitive met twice (referenced from several cells) must be skipped
-by the walk's mailbox, since these actions would count it again.
+by the walk's mailbox, since these modes would count it again.
+
+Writes into the action's arrays go through small kernels that are called, not
+inlined at Numba's IR level: inlined into a ``prange`` loop, a store into an array
+field of a tuple argument is dropped (Numba 0.68 loses it; LLVM may still inline
+the call). Choosing the action at compile time by its type, through
+``numba.extending.overload``, was tried: the overload, called rather than inlined,
+cost up to half of the kd-tree's closest-hit speed.
 """
 
 from __future__ import annotations
@@ -27,38 +36,53 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .._jit import dispatch_kernel, inline_kernel
+from .._jit import inline_kernel, kernel
 from ..geometry.primitive import cross_prim, intersect_prim
 
-__all__ = ["NearestHit", "HitCount", "HitList", "is_closer", "store_hit", "visit_prim", "finish_ray",
-           "intersect_references"]
+__all__ = ["NEAREST", "COUNT", "LIST", "Action", "nearest_hit", "hit_count", "hit_list", "is_closer", "store_hit",
+           "visit_prim", "finish_ray", "intersect_references"]
+
+NEAREST = 0
+COUNT = 1
+LIST = 2
 
 
-class NearestHit(NamedTuple):
-    """Closest (or any) hit per ray, each (n,): ``t``, ``prim`` (int64), ``u``, ``v``; rows start as misses."""
+class Action(NamedTuple):
+    """What a walk does with the primitives it meets, and where it writes (per output row ``r``).
 
+    ``mode``: NEAREST, COUNT or LIST. NEAREST: ``t``, ``prim``, ``u``, ``v`` (n,), the best
+    hit of row ``r`` (rows start as misses). COUNT: ``count`` (n,) int64, crossings of row
+    ``r`` (starting at 0). LIST: row ``r`` fills ``t, prim, u, v[offsets[r]:offsets[r + 1]]``,
+    ``count[r]`` (starting at 0) of them so far. Arrays a mode does not use are empty.
+    """
+
+    mode: int
     t: np.ndarray
     prim: np.ndarray
     u: np.ndarray
     v: np.ndarray
-
-
-class HitCount(NamedTuple):
-    """Crossings per ray, (n,) int64, starting at 0."""
-
     count: np.ndarray
-
-
-class HitList(NamedTuple):
-    """Crossings per ray: row ``r`` fills ``t, prim, u, v[offsets[r]:offsets[r + 1]]``; ``fill`` (n,)
-    int64, starting at 0, is how many it holds so far."""
-
     offsets: np.ndarray
-    fill: np.ndarray
-    t: np.ndarray
-    prim: np.ndarray
-    u: np.ndarray
-    v: np.ndarray
+
+
+_NO_FLOATS = np.zeros(0)
+_NO_INTS = np.zeros(0, dtype=np.int64)
+
+
+def nearest_hit(t, prim, u, v) -> Action:
+    """The closest-hit (or any-hit) action writing into ``t``, ``prim``, ``u``, ``v`` (n,)."""
+    return Action(NEAREST, t, prim, u, v, _NO_INTS, _NO_INTS)
+
+
+def hit_count(count) -> Action:
+    """The counting action adding each row's crossings into ``count`` (n,) int64 zeros."""
+    return Action(COUNT, _NO_FLOATS, _NO_INTS, _NO_FLOATS, _NO_FLOATS, count, _NO_INTS)
+
+
+def hit_list(offsets, fill, t, prim, u, v) -> Action:
+    """The listing action: row ``r`` fills ``t, prim, u, v[offsets[r]:offsets[r + 1]]``, ``fill`` (n,)
+    int64 zeros counting how many so far."""
+    return Action(LIST, t, prim, u, v, fill, offsets)
 
 
 @inline_kernel
@@ -81,38 +105,23 @@ def store_hit(i, t, prim, u, v, out_t, out_prim, out_u, out_v):
         out_v[i] = v
 
 
-def visit_prim(action, row, kind, geom, k, prim, ray, t_min, best_t, best_prim, best_u, best_v, any_hit):
-    """Test primitive ``prim`` (row ``k`` of ``geom``) for the ray of output row ``row`` and apply
-    the action; returns ``(best_t, best_prim, best_u, best_v, stop)``, ``stop`` when the walk
-    can end at once (an any-hit query that found one)."""
+@kernel
+def _add_crossings(action, row, n):
+    action.count[row] += n
 
 
-def finish_ray(action, row, best_t, best_prim, best_u, best_v):
-    """Write what the walk kept for the ray of output row ``row`` (the closest hit; nothing for
-    the actions that write as they go)."""
+@kernel
+def _store_nearest(action, row, best_t, best_prim, best_u, best_v):
+    store_hit(row, best_t, best_prim, best_u, best_v, action.t, action.prim, action.u, action.v)
 
 
-def _keep_nearest(action, row, kind, geom, k, prim, ray, t_min, best_t, best_prim, best_u, best_v, any_hit):
-    t, u, v = intersect_prim(kind, geom, k, ray, t_min, best_t)
-    if is_closer(t, prim, best_t, best_prim):
-        return t, prim, u, v, any_hit
-    return best_t, best_prim, best_u, best_v, False
-
-
-def _count_crossings(action, row, kind, geom, k, prim, ray, t_min, best_t, best_prim, best_u, best_v, any_hit):
-    n, _, _, _, _ = cross_prim(kind, geom, k, ray, t_min, best_t)
-    if n > 0:
-        action.count[row] += n
-    return best_t, best_prim, best_u, best_v, False
-
-
-@inline_kernel
+@kernel
 def _insert(action, row, t, prim, u, v):
     """Put the crossing ``(t, prim)`` into row ``row``'s sorted slots, dropping the farthest when they
     are full (or the crossing itself, when it is the farthest); returns whether they are full."""
     first = action.offsets[row]
     capacity = action.offsets[row + 1] - first
-    filled = action.fill[row]
+    filled = action.count[row]
     if capacity == 0:
         return False
     if filled == capacity:
@@ -122,7 +131,7 @@ def _insert(action, row, t, prim, u, v):
         slot = last
     else:
         slot = first + filled
-        action.fill[row] = filled + 1
+        action.count[row] = filled + 1
     while slot > first and (action.t[slot - 1] > t or (action.t[slot - 1] == t and action.prim[slot - 1] > prim)):
         action.t[slot] = action.t[slot - 1]
         action.prim[slot] = action.prim[slot - 1]
@@ -136,9 +145,21 @@ def _insert(action, row, t, prim, u, v):
     return filled + 1 >= capacity
 
 
-def _collect_crossings(action, row, kind, geom, k, prim, ray, t_min, best_t, best_prim, best_u, best_v, any_hit):
+@inline_kernel
+def visit_prim(action, row, kind, geom, k, prim, ray, t_min, best_t, best_prim, best_u, best_v, any_hit):
+    """Test primitive ``prim`` (row ``k`` of ``geom``) for the ray of output row ``row`` and apply
+    the action; returns ``(best_t, best_prim, best_u, best_v, stop)``, ``stop`` when the walk
+    can end at once (an any-hit query that found one)."""
+    if action.mode == NEAREST:
+        t, u, v = intersect_prim(kind, geom, k, ray, t_min, best_t)
+        if is_closer(t, prim, best_t, best_prim):
+            return t, prim, u, v, any_hit
+        return best_t, best_prim, best_u, best_v, False
     n, t_first, t_second, u, v = cross_prim(kind, geom, k, ray, t_min, best_t)
     if n == 0:
+        return best_t, best_prim, best_u, best_v, False
+    if action.mode == COUNT:
+        _add_crossings(action, row, n)
         return best_t, best_prim, best_u, best_v, False
     full = _insert(action, row, t_first, prim, u, v)
     if n == 2:
@@ -149,26 +170,12 @@ def _collect_crossings(action, row, kind, geom, k, prim, ray, t_min, best_t, bes
     return best_t, best_prim, best_u, best_v, False
 
 
-def _store_nearest(action, row, best_t, best_prim, best_u, best_v):
-    store_hit(row, best_t, best_prim, best_u, best_v, action.t, action.prim, action.u, action.v)
-
-
-def _written_already(action, row, best_t, best_prim, best_u, best_v):
-    return None
-
-
-_VISITS = {NearestHit: _keep_nearest, HitCount: _count_crossings, HitList: _collect_crossings}
-_FINISHES = {NearestHit: _store_nearest, HitCount: _written_already, HitList: _written_already}
-
-
-@dispatch_kernel(visit_prim)
-def _select_visit(action, row, kind, geom, k, prim, ray, t_min, best_t, best_prim, best_u, best_v, any_hit):
-    return _VISITS.get(getattr(action, "instance_class", None))
-
-
-@dispatch_kernel(finish_ray)
-def _select_finish(action, row, best_t, best_prim, best_u, best_v):
-    return _FINISHES.get(getattr(action, "instance_class", None))
+@inline_kernel
+def finish_ray(action, row, best_t, best_prim, best_u, best_v):
+    """Write what the walk kept for the ray of output row ``row``: the closest hit (the other
+    modes write as they go)."""
+    if action.mode == NEAREST:
+        _store_nearest(action, row, best_t, best_prim, best_u, best_v)
 
 
 @inline_kernel

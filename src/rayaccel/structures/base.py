@@ -12,7 +12,7 @@ from ..geometry.sphere import sphere_hit_coords
 from ..ray_order import MIN_RAYS, coherent_batch
 from ..rays import AllHits, Camera, Hits, RayCounters, prepare_rays
 from ..scene import SPHERE, PrimitiveBounds, Spheres, TriangleMesh
-from .actions import HitCount, HitList, NearestHit, intersect_references, is_closer, store_hit
+from .actions import NEAREST, hit_count, hit_list, intersect_references, is_closer, nearest_hit, store_hit
 from .grid.mailbox import MailboxPool
 
 __all__ = ["Accelerator", "is_closer", "intersect_references", "store_hit", "settled_before", "EXIT_MARGIN"]
@@ -153,11 +153,10 @@ class Accelerator:
         offsets = np.zeros(len(counts) + 1, dtype=np.int64)
         np.cumsum(counts, out=offsets[1:])
         m = int(offsets[-1])
-        found = HitList(offsets, np.zeros(len(counts), dtype=np.int64), np.empty(m), np.empty(m, dtype=np.int64),
-                        np.empty(m), np.empty(m))
+        t, prim, u, v = np.empty(m), np.empty(m, dtype=np.int64), np.empty(m), np.empty(m)
         if m:
-            self._trace(batch, False, found, np.zeros((0, 3), dtype=np.int64))
-        _, _, t, prim, u, v = found
+            self._trace(batch, False, hit_list(offsets, np.zeros(len(counts), dtype=np.int64), t, prim, u, v),
+                        np.zeros((0, 3), dtype=np.int64))
         if self.scene.kind == SPHERE and m:
             ray = np.repeat(np.arange(len(counts)), counts)
             sphere_hit_coords(self.scene.geometry, rays.origins[ray], rays.directions[ray], t, prim, u, v)
@@ -166,7 +165,7 @@ class Accelerator:
     def _count(self, rays, batch) -> np.ndarray:
         counts = np.zeros(len(rays.origins), dtype=np.int64)
         if len(counts):
-            self._trace(batch, False, HitCount(counts), np.zeros((0, 3), dtype=np.int64))
+            self._trace(batch, False, hit_count(counts), np.zeros((0, 3), dtype=np.int64))
         return counts
 
     def _ordered(self, rays, reorder):
@@ -178,7 +177,7 @@ class Accelerator:
         when it has none or they are off: a primitive met again is still the candidate), and
         always some for counting and collecting, which must see each primitive once per ray."""
         own = getattr(self, "mailboxes", None)
-        if isinstance(action, NearestHit):
+        if action.mode == NEAREST:
             return own if own is not None else MailboxPool(0, enabled=False)
         if own is not None and own.enabled:
             return own
@@ -219,7 +218,7 @@ class Accelerator:
         v = np.full(n, np.nan) if coordinates else np.empty(n)
         work = np.zeros((n if counters else 0, 3), dtype=np.int64)
         if n:
-            self._trace(self._ordered(rays, reorder), any_hit, NearestHit(t, prim, u, v), work)
+            self._trace(self._ordered(rays, reorder), any_hit, nearest_hit(t, prim, u, v), work)
         return rays, t, prim, u, v, work
 
     @functools.cached_property
