@@ -69,6 +69,8 @@ def cross_sphere(geom, prim, ox, oy, oz, dx, dy, dz, t_min, t_max):
     crosses twice at the same ``t`` (so that crossings from outside stay even)."""
     t_near, t_far = sphere_span(geom[prim, 0], geom[prim, 1], geom[prim, 2], geom[prim, 3],
                                 ox, oy, oz, dx, dy, dz)
+    if t_near > t_far:
+        return 0, np.inf, np.inf
     near_in = t_near >= t_min and t_near <= t_max
     far_in = t_far >= t_min and t_far <= t_max
     if near_in and far_in:
