@@ -138,9 +138,12 @@ def cross_triangle(geom, prim, ox, oy, oz, kx, ky, kz, sx, sy, sz, t_min, t_max)
     e0 = cx_ * by_ - cy_ * bx_
     e1 = ax_ * cy_ - ay_ * cx_
     e2 = bx_ * ay_ - by_ * ax_
-    s0 = _edge_sign(e0, cx_, cy_, bx_, by_)
-    s1 = _edge_sign(e1, ax_, ay_, cx_, cy_)
-    s2 = _edge_sign(e2, bx_, by_, ax_, ay_)
-    if s0 != s1 or s1 != s2:
+    if (e0 < 0.0 or e1 < 0.0 or e2 < 0.0) and (e0 > 0.0 or e1 > 0.0 or e2 > 0.0):
         return np.inf, 0.0, 0.0
+    if e0 == 0.0 or e1 == 0.0 or e2 == 0.0:
+        s0 = _edge_sign(e0, cx_, cy_, bx_, by_)
+        s1 = _edge_sign(e1, ax_, ay_, cx_, cy_)
+        s2 = _edge_sign(e2, bx_, by_, ax_, ay_)
+        if s0 != s1 or s1 != s2:
+            return np.inf, 0.0, 0.0
     return _hit_from_edges(e0, e1, e2, ax_, ay_, bx_, by_, cx_, cy_, az_, bz_, cz_, sz, t_min, t_max)
