@@ -82,27 +82,6 @@ def _hit_from_edges(e0, e1, e2, ax_, ay_, bx_, by_, cx_, cy_, az_, bz_, cz_, sz,
 
 
 @inline_kernel
-def intersect_triangle(geom, prim, ox, oy, oz, kx, ky, kz, sx, sy, sz, t_min, t_max):
-    """Hit of the ray with triangle ``geom[prim]`` (v0, v1, v2 as 9 floats).
-
-    Returns ``(t, u, v)`` with the hit point ``(1-u-v)*v0 + u*v1 + v*v2`` and
-    ``t_min <= t <= t_max``, or ``(inf, 0, 0)`` when there is no such hit.
-    Degenerate triangles and rays in the triangle's plane never hit. A ray through
-    an edge or vertex hits every triangle there (see :func:`cross_triangle` for
-    the test that gives each crossing to one triangle).
-    """
-    ax_, ay_, bx_, by_, cx_, cy_, az_, bz_, cz_ = _sheared_vertices(geom, prim, ox, oy, oz, kx, ky, kz, sx, sy)
-    # Each edge function is p.x*q.y - p.y*q.x over the edge (p, q) taken in
-    # cyclic order, so a shared edge gives exactly the negated value.
-    e0 = cx_ * by_ - cy_ * bx_
-    e1 = ax_ * cy_ - ay_ * cx_
-    e2 = bx_ * ay_ - by_ * ax_
-    if (e0 < 0.0 or e1 < 0.0 or e2 < 0.0) and (e0 > 0.0 or e1 > 0.0 or e2 > 0.0):
-        return np.inf, 0.0, 0.0
-    return _hit_from_edges(e0, e1, e2, ax_, ay_, bx_, by_, cx_, cy_, az_, bz_, cz_, sz, t_min, t_max)
-
-
-@inline_kernel
 def _edge_sign(e, px, py, qx, qy):
     """The sign (+1 or -1) of the edge function ``e = p x q``, where ``e`` is exactly zero
     resolved as ``e`` at the ray moved by ``(eps, eps^2)``: ``e + eps (p - q).y - eps^2 (p - q).x``."""
@@ -114,6 +93,40 @@ def _edge_sign(e, px, py, qx, qy):
     if wy > 0.0 or (wy == 0.0 and px - qx < 0.0):
         return 1
     return -1
+
+
+@inline_kernel
+def _triangle_hit(geom, prim, ox, oy, oz, kx, ky, kz, sx, sy, sz, t_min, t_max, one_owner):
+    """The test behind :func:`intersect_triangle` (``one_owner`` False: zero edge functions count
+    as inside) and :func:`cross_triangle` (True: they are resolved by :func:`_edge_sign`)."""
+    ax_, ay_, bx_, by_, cx_, cy_, az_, bz_, cz_ = _sheared_vertices(geom, prim, ox, oy, oz, kx, ky, kz, sx, sy)
+    # Each edge function is p.x*q.y - p.y*q.x over the edge (p, q) taken in
+    # cyclic order, so a shared edge gives exactly the negated value.
+    e0 = cx_ * by_ - cy_ * bx_
+    e1 = ax_ * cy_ - ay_ * cx_
+    e2 = bx_ * ay_ - by_ * ax_
+    if (e0 < 0.0 or e1 < 0.0 or e2 < 0.0) and (e0 > 0.0 or e1 > 0.0 or e2 > 0.0):
+        return np.inf, 0.0, 0.0
+    if one_owner and (e0 == 0.0 or e1 == 0.0 or e2 == 0.0):
+        s0 = _edge_sign(e0, cx_, cy_, bx_, by_)
+        s1 = _edge_sign(e1, ax_, ay_, cx_, cy_)
+        s2 = _edge_sign(e2, bx_, by_, ax_, ay_)
+        if s0 != s1 or s1 != s2:
+            return np.inf, 0.0, 0.0
+    return _hit_from_edges(e0, e1, e2, ax_, ay_, bx_, by_, cx_, cy_, az_, bz_, cz_, sz, t_min, t_max)
+
+
+@inline_kernel
+def intersect_triangle(geom, prim, ox, oy, oz, kx, ky, kz, sx, sy, sz, t_min, t_max):
+    """Hit of the ray with triangle ``geom[prim]`` (v0, v1, v2 as 9 floats).
+
+    Returns ``(t, u, v)`` with the hit point ``(1-u-v)*v0 + u*v1 + v*v2`` and
+    ``t_min <= t <= t_max``, or ``(inf, 0, 0)`` when there is no such hit.
+    Degenerate triangles and rays in the triangle's plane never hit. A ray through
+    an edge or vertex hits every triangle there (see :func:`cross_triangle` for
+    the test that gives each crossing to one triangle).
+    """
+    return _triangle_hit(geom, prim, ox, oy, oz, kx, ky, kz, sx, sy, sz, t_min, t_max, False)
 
 
 @inline_kernel
@@ -134,16 +147,4 @@ def cross_triangle(geom, prim, ox, oy, oz, kx, ky, kz, sx, sy, sz, t_min, t_max)
     number from outside, whatever the mesh's orientation. Both triangles of a
     shared edge compute the same sheared vertices bit for bit, so they decide alike.
     """
-    ax_, ay_, bx_, by_, cx_, cy_, az_, bz_, cz_ = _sheared_vertices(geom, prim, ox, oy, oz, kx, ky, kz, sx, sy)
-    e0 = cx_ * by_ - cy_ * bx_
-    e1 = ax_ * cy_ - ay_ * cx_
-    e2 = bx_ * ay_ - by_ * ax_
-    if (e0 < 0.0 or e1 < 0.0 or e2 < 0.0) and (e0 > 0.0 or e1 > 0.0 or e2 > 0.0):
-        return np.inf, 0.0, 0.0
-    if e0 == 0.0 or e1 == 0.0 or e2 == 0.0:
-        s0 = _edge_sign(e0, cx_, cy_, bx_, by_)
-        s1 = _edge_sign(e1, ax_, ay_, cx_, cy_)
-        s2 = _edge_sign(e2, bx_, by_, ax_, ay_)
-        if s0 != s1 or s1 != s2:
-            return np.inf, 0.0, 0.0
-    return _hit_from_edges(e0, e1, e2, ax_, ay_, bx_, by_, cx_, cy_, az_, bz_, cz_, sz, t_min, t_max)
+    return _triangle_hit(geom, prim, ox, oy, oz, kx, ky, kz, sx, sy, sz, t_min, t_max, True)
