@@ -9,11 +9,12 @@
 from .catalog import builtin_scenes, load_scene
 from .instances import Scene
 from .persist import CorruptFileError, load_accelerator
-from .rays import Camera, Hits, RayCounters
+from .rays import AllHits, Camera, Hits, RayCounters
 from .scene import MeshLoadError, Spheres, TriangleMesh, load_mesh, random_spheres
 from .structures.registry import build, build_class, methods
 
 __all__ = [
+    "AllHits",
     "Camera",
     "Hits",
     "RayCounters",

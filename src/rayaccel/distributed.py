@@ -2,7 +2,8 @@
 
 Dask (https://docs.dask.org) is the optional engine (``pip install "rayaccel[dask]"``): ``dask.array``
 holds the ray batches, ``distributed`` runs them on a cluster. This module only calls the public
-queries (:meth:`Accelerator.intersect`, :meth:`Accelerator.occluded` and the point queries
+queries (:meth:`Accelerator.intersect`, :meth:`Accelerator.occluded`, :meth:`Accelerator.count`,
+:meth:`Accelerator.intersect_all` and the point queries
 :meth:`closest_point`, :meth:`distance`, :meth:`winding_number`, :meth:`contains`,
 :meth:`signed_distance`) and the renderer's :func:`rayaccel.render.render_pixels`, one call per chunk of
 rays or tile of pixels.
@@ -34,16 +35,18 @@ import numpy as np
 
 from ._jit import max_threads, set_threads, thread_count
 from .points import ClosestPoints, check_accuracy, check_max_distance
-from .rays import Hits, RayCounters
+from .rays import AllHits, Hits, RayCounters
 from .render import _BAND_ROWS, RenderResult, assemble, default_camera, default_lights, render_pixels
 
-__all__ = ["is_dask_array", "intersect", "occluded", "closest_point", "distance", "winding_number", "contains",
-           "signed_distance", "ship", "connect", "render"]
+__all__ = ["is_dask_array", "intersect", "occluded", "count", "intersect_all", "closest_point", "distance",
+           "winding_number", "contains", "signed_distance", "ship", "connect", "render"]
 
 _INSTALL = 'pip install "rayaccel[dask]"'
 _HIT_FIELDS = [("t", np.float64), ("prim", np.int64), ("u", np.float64), ("v", np.float64), ("geom", np.int64)]
 _COUNTER_FIELDS = [("nodes", np.int64), ("tests", np.int64), ("mailbox_skips", np.int64)]
 _SHIPPED = weakref.WeakKeyDictionary()
+_ARRAY_QUERIES = {"occluded": np.dtype(bool), "count": np.dtype(np.int64), "intersect_all": None}
+_ALL_FIELDS = [("t", np.float64), ("prim", np.int64), ("u", np.float64), ("v", np.float64), ("geom", np.int64)]
 
 
 def is_dask_array(value) -> bool:
@@ -121,7 +124,7 @@ def _kernel_threads(threads):
 def _query_block(accel, query, options, threads, origins, directions, t_min, t_max):
     with _kernel_threads(threads):
         result = getattr(accel, query)(origins, directions, t_min, t_max, **options)
-    if query == "occluded":
+    if query in _ARRAY_QUERIES:
         return result
     packed = np.empty(len(result.t), dtype=_hits_dtype(result.counters is not None))
     for name, _ in _HIT_FIELDS:
@@ -189,8 +192,9 @@ def _chunked(da, array, chunks):
     return da.from_array(np.ascontiguousarray(array), chunks=chunks)
 
 
-def _query(accel, query, origins, directions, t_min, t_max, options, kernel_threads):
-    da = _require("dask.array")
+def _inputs(da, origins, directions, t_min, t_max, kernel_threads):
+    """The rays as Dask arrays chunked alike (origins, directions (n, 3); t_min, t_max (n,) or floats,
+    each with its blockwise index, None for a float)."""
     if not (kernel_threads is None or kernel_threads == "match"
             or (isinstance(kernel_threads, (int, np.integer)) and not isinstance(kernel_threads, bool)
                 and kernel_threads >= 1)):
@@ -206,7 +210,15 @@ def _query(accel, query, origins, directions, t_min, t_max, options, kernel_thre
     directions = _chunked(da, directions, (rows, (3,)))
     t_min, min_index = _per_ray(da, "t_min", t_min, n, rows)
     t_max, max_index = _per_ray(da, "t_max", t_max, n, rows)
-    meta = np.empty(0, dtype=bool if query == "occluded" else _hits_dtype(options.get("counters", False)))
+    return origins, directions, t_min, min_index, t_max, max_index
+
+
+def _query(accel, query, origins, directions, t_min, t_max, options, kernel_threads):
+    da = _require("dask.array")
+    origins, directions, t_min, min_index, t_max, max_index = _inputs(da, origins, directions, t_min, t_max,
+                                                                      kernel_threads)
+    meta = np.empty(0, dtype=_ARRAY_QUERIES[query] if query in _ARRAY_QUERIES
+                    else _hits_dtype(options.get("counters", False)))
     return da.blockwise(_query_block, "i", ship(accel), None, query, None, options, None, kernel_threads, None,
                         origins, "ij", directions, "ij", t_min, min_index, t_max, max_index,
                         meta=meta, concatenate=True, name=f"rayaccel-{query}-{uuid.uuid4().hex}")
@@ -243,6 +255,46 @@ def occluded(accel, origins, directions, t_min=0.0, t_max=np.inf, *, reorder=Tru
     """:meth:`Accelerator.occluded` on Dask arrays: a lazy (n,) bool Dask array chunked as the rays
     (inputs and ``kernel_threads`` as for :func:`intersect`)."""
     return _query(accel, "occluded", origins, directions, t_min, t_max, dict(reorder=bool(reorder)), kernel_threads)
+
+
+def count(accel, origins, directions, t_min=0.0, t_max=np.inf, *, reorder=True, kernel_threads="match"):
+    """:meth:`Accelerator.count` on Dask arrays: a lazy (n,) int64 Dask array chunked as the rays
+    (inputs and ``kernel_threads`` as for :func:`intersect`)."""
+    return _query(accel, "count", origins, directions, t_min, t_max, dict(reorder=bool(reorder)), kernel_threads)
+
+
+def _block_piece(found, name):
+    return np.diff(found.offsets) if name == "counts" else getattr(found, name)
+
+
+def intersect_all(accel, origins, directions, t_min=0.0, t_max=np.inf, *, max_hits=None, reorder=True,
+                  kernel_threads="match") -> AllHits:
+    """:meth:`Accelerator.intersect_all` on Dask arrays: an :class:`AllHits` of lazy Dask arrays.
+
+    One task per chunk of rays runs the query; ``offsets`` (n + 1,) is the running sum of
+    the chunks' hit counts, and the flat fields are chunked by the chunks of rays, with
+    sizes known once computed (``compute_chunk_sizes()``). Compute the fields together
+    (``dask.compute(hits.offsets, hits.t)``), or the chunks are traced once per computation.
+    Inputs and ``kernel_threads`` as for :func:`intersect`.
+    """
+    da = _require("dask.array")
+    delayed = _require("dask").delayed
+    origins, directions, t_min, min_index, t_max, max_index = _inputs(da, origins, directions, t_min, t_max,
+                                                                      kernel_threads)
+    structure = ship(accel)
+    options = dict(max_hits=max_hits, reorder=bool(reorder))
+    blocks = zip(origins.to_delayed().ravel(), directions.to_delayed().ravel(),
+                 t_min.to_delayed().ravel() if min_index else [t_min] * origins.numblocks[0],
+                 t_max.to_delayed().ravel() if max_index else [t_max] * origins.numblocks[0])
+    found = [delayed(_query_block, pure=True)(structure, "intersect_all", options, kernel_threads, *block)
+             for block in blocks]
+    sizes = origins.chunks[0]
+    counts = da.concatenate([da.from_delayed(delayed(_block_piece)(piece, "counts"), (size,), dtype=np.int64)
+                             for piece, size in zip(found, sizes)])
+    offsets = da.concatenate([da.zeros(1, dtype=np.int64, chunks=1), da.cumsum(counts)])
+    fields = {name: da.concatenate([da.from_delayed(delayed(_block_piece)(piece, name), (np.nan,), dtype=dtype)
+                                    for piece in found]) for name, dtype in _ALL_FIELDS}
+    return AllHits(offsets, **fields)
 
 
 _CLOSEST_FIELDS = [("x", np.float64), ("y", np.float64), ("z", np.float64), ("distance", np.float64),

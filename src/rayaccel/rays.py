@@ -8,7 +8,7 @@ import numpy as np
 
 from ._validate import as_per_ray, as_points, check_ray_arrays
 
-__all__ = ["RayBatch", "RayCounters", "Hits", "Camera", "prepare_rays", "random_lines"]
+__all__ = ["RayBatch", "RayCounters", "Hits", "AllHits", "Camera", "prepare_rays", "random_lines"]
 
 
 class RayBatch(NamedTuple):
@@ -61,6 +61,33 @@ class Hits(NamedTuple):
     def hit(self) -> np.ndarray:
         """(n,) bool, True where the ray hit something."""
         return self.prim >= 0
+
+
+class AllHits(NamedTuple):
+    """Every hit of each ray of a batch (:meth:`rayaccel.structures.base.Accelerator.intersect_all`).
+
+    ``offsets`` (n + 1,) int64: ray ``i``'s hits are the entries ``offsets[i]:offsets[i + 1]``
+    of the flat arrays, sorted by ``t``, equal distances by ``prim`` (by ``geom``, then ``prim``
+    in a scene of instances); ``t``, ``prim``, ``u``, ``v``, ``geom`` as in :class:`Hits`, one
+    entry per hit (``geom`` is 0 for a plain mesh or sphere set).
+    """
+
+    offsets: np.ndarray
+    t: np.ndarray
+    prim: np.ndarray
+    u: np.ndarray
+    v: np.ndarray
+    geom: np.ndarray
+
+    @property
+    def counts(self) -> np.ndarray:
+        """(n,) int64: hits per ray."""
+        return np.diff(self.offsets)
+
+    @property
+    def ray(self) -> np.ndarray:
+        """(m,) int64: the ray each hit belongs to."""
+        return np.repeat(np.arange(len(self.offsets) - 1), np.diff(self.offsets))
 
 
 def prepare_rays(origins, directions, t_min=0.0, t_max=np.inf) -> RayBatch:

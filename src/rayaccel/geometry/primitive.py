@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+import numpy as np
+
 from .._jit import inline_kernel
 from .kinds import TRIANGLE
-from .sphere import intersect_sphere
-from .triangle import intersect_triangle, shear_setup
+from .sphere import cross_sphere, intersect_sphere
+from .triangle import cross_triangle, intersect_triangle, shear_setup
 
-__all__ = ["ray_setup", "intersect_prim"]
+__all__ = ["ray_setup", "intersect_prim", "cross_prim"]
 
 
 @inline_kernel
@@ -25,3 +27,17 @@ def intersect_prim(kind, geom, prim, ray, t_min, t_max):
     if kind == TRIANGLE:
         return intersect_triangle(geom, prim, ox, oy, oz, kx, ky, kz, sx, sy, sz, t_min, t_max)
     return intersect_sphere(geom, prim, ox, oy, oz, dx, dy, dz, t_min, t_max), 0.0, 0.0
+
+
+@inline_kernel
+def cross_prim(kind, geom, prim, ray, t_min, t_max):
+    """``(n, t_first, t_second, u, v)``: the ray's ``n`` crossings of primitive ``prim`` in
+    ``[t_min, t_max]``, nearest first (``inf`` where absent). A triangle is crossed at most
+    once, under the tie rule of :func:`.triangle.cross_triangle`, with barycentrics ``u, v``;
+    a sphere up to twice (:func:`.sphere.cross_sphere`), ``u = v = 0``."""
+    ox, oy, oz, dx, dy, dz, kx, ky, kz, sx, sy, sz = ray
+    if kind == TRIANGLE:
+        t, u, v = cross_triangle(geom, prim, ox, oy, oz, kx, ky, kz, sx, sy, sz, t_min, t_max)
+        return (0 if t == np.inf else 1), t, np.inf, u, v
+    n, t_first, t_second = cross_sphere(geom, prim, ox, oy, oz, dx, dy, dz, t_min, t_max)
+    return n, t_first, t_second, 0.0, 0.0

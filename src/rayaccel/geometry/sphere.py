@@ -18,7 +18,7 @@ from numba import prange
 
 from .._jit import inline_kernel, parallel_kernel
 
-__all__ = ["sphere_span", "intersect_sphere", "sphere_hit_coords"]
+__all__ = ["sphere_span", "intersect_sphere", "cross_sphere", "sphere_hit_coords"]
 
 
 @inline_kernel
@@ -60,6 +60,26 @@ def intersect_sphere(geom, prim, ox, oy, oz, dx, dy, dz, t_min, t_max):
     if t_far >= t_min and t_far <= t_max:
         return t_far
     return np.inf
+
+
+@inline_kernel
+def cross_sphere(geom, prim, ox, oy, oz, dx, dy, dz, t_min, t_max):
+    """``(n, t_first, t_second)``: the ray's ``n`` crossings (0, 1 or 2) of sphere ``geom[prim]``
+    within ``[t_min, t_max]``, nearest first; entering and leaving each count, and a tangent ray
+    crosses twice at the same ``t`` (so that crossings from outside stay even)."""
+    t_near, t_far = sphere_span(geom[prim, 0], geom[prim, 1], geom[prim, 2], geom[prim, 3],
+                                ox, oy, oz, dx, dy, dz)
+    if t_near > t_far:
+        return 0, np.inf, np.inf
+    near_in = t_near >= t_min and t_near <= t_max
+    far_in = t_far >= t_min and t_far <= t_max
+    if near_in and far_in:
+        return 2, t_near, t_far
+    if near_in:
+        return 1, t_near, np.inf
+    if far_in:
+        return 1, t_far, np.inf
+    return 0, np.inf, np.inf
 
 
 @parallel_kernel

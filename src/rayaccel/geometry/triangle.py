@@ -5,8 +5,10 @@ Computer Graphics Techniques 2(1), 2013. The ray is sheared so that it runs
 along +z through the origin; each edge function is then a 2D cross product of
 two sheared vertices, computed bit-identically for both triangles that share
 the edge (with opposite sign), so a ray through a shared edge or vertex of a
-closed mesh always hits at least one of them. Edge functions that are exactly
-zero count as inside. Everything is float64, which the paper's fallback for
+closed mesh always hits at least one of them. For the closest hit
+(:func:`intersect_triangle`) edge functions that are exactly zero count as
+inside; for counting crossings (:func:`cross_triangle`) a tie rule gives each
+crossing of a shared edge or vertex to exactly one triangle. Everything is float64, which the paper's fallback for
 zero edge functions asks for anyway. A triangle whose projected area (det) is
 within rounding error of zero is degenerate and never hit, so that no
 structure can disagree with another about a hit computed from noise.
@@ -18,7 +20,7 @@ import numpy as np
 
 from .._jit import inline_kernel
 
-__all__ = ["shear_setup", "intersect_triangle"]
+__all__ = ["shear_setup", "intersect_triangle", "cross_triangle"]
 
 _DEGENERATE = 1e-13  # relative size of det below which a triangle counts as degenerate
 
@@ -44,13 +46,9 @@ def shear_setup(dx, dy, dz):
 
 
 @inline_kernel
-def intersect_triangle(geom, prim, ox, oy, oz, kx, ky, kz, sx, sy, sz, t_min, t_max):
-    """Hit of the ray with triangle ``geom[prim]`` (v0, v1, v2 as 9 floats).
-
-    Returns ``(t, u, v)`` with the hit point ``(1-u-v)*v0 + u*v1 + v*v2`` and
-    ``t_min <= t <= t_max``, or ``(inf, 0, 0)`` when there is no such hit.
-    Degenerate triangles and rays in the triangle's plane never hit.
-    """
+def _sheared_vertices(geom, prim, ox, oy, oz, kx, ky, kz, sx, sy):
+    """The triangle's vertices relative to the ray origin, sheared so that the ray runs along
+    +z: ``(ax, ay, bx, by, cx, cy, az, bz, cz)``, z not yet scaled by ``sz``."""
     origin = (ox, oy, oz)
     okx, oky, okz = origin[kx], origin[ky], origin[kz]
     az_ = geom[prim, kz] - okz
@@ -62,13 +60,13 @@ def intersect_triangle(geom, prim, ox, oy, oz, kx, ky, kz, sx, sy, sz, t_min, t_
     by_ = (geom[prim, 3 + ky] - oky) - sy * bz_
     cx_ = (geom[prim, 6 + kx] - okx) - sx * cz_
     cy_ = (geom[prim, 6 + ky] - oky) - sy * cz_
-    # Each edge function is p.x*q.y - p.y*q.x over the edge (p, q) taken in
-    # cyclic order, so a shared edge gives exactly the negated value.
-    e0 = cx_ * by_ - cy_ * bx_
-    e1 = ax_ * cy_ - ay_ * cx_
-    e2 = bx_ * ay_ - by_ * ax_
-    if (e0 < 0.0 or e1 < 0.0 or e2 < 0.0) and (e0 > 0.0 or e1 > 0.0 or e2 > 0.0):
-        return np.inf, 0.0, 0.0
+    return ax_, ay_, bx_, by_, cx_, cy_, az_, bz_, cz_
+
+
+@inline_kernel
+def _hit_from_edges(e0, e1, e2, ax_, ay_, bx_, by_, cx_, cy_, az_, bz_, cz_, sz, t_min, t_max):
+    """``(t, u, v)`` of a ray inside the triangle's edges, or ``(inf, 0, 0)`` when the triangle
+    is degenerate or the hit lies outside ``[t_min, t_max]``."""
     det = e0 + e1 + e2
     # A triangle that is degenerate (collinear vertices) has det = 0 exactly, but its rounded
     # edge functions can leave a tiny det of either sign and a meaningless t; any det within
@@ -81,3 +79,72 @@ def intersect_triangle(geom, prim, ox, oy, oz, kx, ky, kz, sx, sy, sz, t_min, t_
     if t >= t_min and t <= t_max:
         return t, e1 / det, e2 / det
     return np.inf, 0.0, 0.0
+
+
+@inline_kernel
+def _edge_sign(e, px, py, qx, qy):
+    """The sign (+1 or -1) of the edge function ``e = p x q``, where ``e`` is exactly zero
+    resolved as ``e`` at the ray moved by ``(eps, eps^2)``: ``e + eps (p - q).y - eps^2 (p - q).x``."""
+    if e > 0.0:
+        return 1
+    if e < 0.0:
+        return -1
+    wy = py - qy
+    if wy > 0.0 or (wy == 0.0 and px - qx < 0.0):
+        return 1
+    return -1
+
+
+@inline_kernel
+def _triangle_hit(geom, prim, ox, oy, oz, kx, ky, kz, sx, sy, sz, t_min, t_max, one_owner):
+    """The test behind :func:`intersect_triangle` (``one_owner`` False: zero edge functions count
+    as inside) and :func:`cross_triangle` (True: they are resolved by :func:`_edge_sign`)."""
+    ax_, ay_, bx_, by_, cx_, cy_, az_, bz_, cz_ = _sheared_vertices(geom, prim, ox, oy, oz, kx, ky, kz, sx, sy)
+    # Each edge function is p.x*q.y - p.y*q.x over the edge (p, q) taken in
+    # cyclic order, so a shared edge gives exactly the negated value.
+    e0 = cx_ * by_ - cy_ * bx_
+    e1 = ax_ * cy_ - ay_ * cx_
+    e2 = bx_ * ay_ - by_ * ax_
+    if (e0 < 0.0 or e1 < 0.0 or e2 < 0.0) and (e0 > 0.0 or e1 > 0.0 or e2 > 0.0):
+        return np.inf, 0.0, 0.0
+    if one_owner and (e0 == 0.0 or e1 == 0.0 or e2 == 0.0):
+        s0 = _edge_sign(e0, cx_, cy_, bx_, by_)
+        s1 = _edge_sign(e1, ax_, ay_, cx_, cy_)
+        s2 = _edge_sign(e2, bx_, by_, ax_, ay_)
+        if s0 != s1 or s1 != s2:
+            return np.inf, 0.0, 0.0
+    return _hit_from_edges(e0, e1, e2, ax_, ay_, bx_, by_, cx_, cy_, az_, bz_, cz_, sz, t_min, t_max)
+
+
+@inline_kernel
+def intersect_triangle(geom, prim, ox, oy, oz, kx, ky, kz, sx, sy, sz, t_min, t_max):
+    """Hit of the ray with triangle ``geom[prim]`` (v0, v1, v2 as 9 floats).
+
+    Returns ``(t, u, v)`` with the hit point ``(1-u-v)*v0 + u*v1 + v*v2`` and
+    ``t_min <= t <= t_max``, or ``(inf, 0, 0)`` when there is no such hit.
+    Degenerate triangles and rays in the triangle's plane never hit. A ray through
+    an edge or vertex hits every triangle there (see :func:`cross_triangle` for
+    the test that gives each crossing to one triangle).
+    """
+    return _triangle_hit(geom, prim, ox, oy, oz, kx, ky, kz, sx, sy, sz, t_min, t_max, False)
+
+
+@inline_kernel
+def cross_triangle(geom, prim, ox, oy, oz, kx, ky, kz, sx, sy, sz, t_min, t_max):
+    """:func:`intersect_triangle` with each crossing given to exactly one triangle.
+
+    Where an edge function is exactly zero (the ray passes through an edge or a
+    vertex), the triangle owns the point only if it would contain the ray moved
+    by an infinitesimal ``(eps, eps^2)`` in the sheared plane (:func:`_edge_sign`):
+    a simulation of simplicity (Edelsbrunner & Muecke, ACM TOG 9(1), 1990) that
+    amounts to the top-left fill rule of rasterisers (Pineda, "A Parallel
+    Algorithm for Polygon Rasterization", SIGGRAPH 1988; Direct3D's rasterisation
+    rules), whose edge tests hold by the edge's direction alone. The two triangles
+    of a shared edge see it with the interior on opposite sides, so one owns it;
+    the triangles around a vertex tile its neighbourhood, so one owns it; a
+    silhouette edge or vertex is owned by both triangles or by neither. A closed
+    mesh is therefore crossed an odd number of times from inside and an even
+    number from outside, whatever the mesh's orientation. Both triangles of a
+    shared edge compute the same sheared vertices bit for bit, so they decide alike.
+    """
+    return _triangle_hit(geom, prim, ox, oy, oz, kx, ky, kz, sx, sy, sz, t_min, t_max, True)

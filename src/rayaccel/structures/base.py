@@ -7,50 +7,19 @@ import functools
 import numpy as np
 
 from .._jit import inline_kernel
-from ..geometry.primitive import intersect_prim
+from .._validate import as_positive_int
 from ..geometry.sphere import sphere_hit_coords
 from ..ray_order import MIN_RAYS, coherent_batch
-from ..rays import Camera, Hits, RayCounters, prepare_rays
+from ..rays import AllHits, Camera, Hits, RayCounters, prepare_rays
 from ..scene import SPHERE, PrimitiveBounds, Spheres, TriangleMesh
+from .actions import NEAREST, hit_count, hit_list, intersect_references, is_closer, nearest_hit, store_hit
+from .grid.mailbox import MailboxPool
 from .point_queries import PointQueries
 
 __all__ = ["Accelerator", "is_closer", "intersect_references", "store_hit", "settled_before", "EXIT_MARGIN"]
 
 # Relative margin by which a hit must lie before a cell's exit for the walk to stop there.
 EXIT_MARGIN = 1e-9
-
-
-@inline_kernel
-def is_closer(t, prim, best_t, best_prim):
-    """Whether a hit ``(t, prim)`` replaces the best so far. Equal distances go to
-    the lower primitive index, so every structure reports the same primitive as
-    brute force even where a ray meets a shared edge or vertex."""
-    if t == np.inf:
-        return False
-    return best_prim < 0 or t < best_t or (t == best_t and prim < best_prim)
-
-
-@inline_kernel
-def intersect_references(first, end, refs, mailbox, tid, stamp, kind, geom, ray, t_min, best_t, best_prim, best_u,
-                         best_v, n_tests, n_skips, any_hit):
-    """Test the primitives ``refs[first:end]`` (a cell's or a leaf's references) against the ray,
-    skipping those already stamped in the mailbox, when there is one (an empty array
-    otherwise), and stamping the others; returns the best hit ``(t, prim, u, v)`` and the
-    counters ``(tests, skips)``, updated."""
-    for k in range(first, end):
-        prim = refs[k]
-        if mailbox.shape[0] > 0:
-            if mailbox[tid, prim] == stamp:
-                n_skips += 1
-                continue
-            mailbox[tid, prim] = stamp
-        n_tests += 1
-        t, u, v = intersect_prim(kind, geom, prim, ray, t_min, best_t)
-        if is_closer(t, prim, best_t, best_prim):
-            best_t, best_prim, best_u, best_v = t, prim, u, v
-            if any_hit:
-                break
-    return best_t, best_prim, best_u, best_v, n_tests, n_skips
 
 
 @inline_kernel
@@ -62,16 +31,6 @@ def settled_before(best_prim, best_t, t_exit):
     return best_prim >= 0 and best_t < t_exit - EXIT_MARGIN * abs(t_exit)
 
 
-@inline_kernel
-def store_hit(i, t, prim, u, v, out_t, out_prim, out_u, out_v):
-    """Write ray ``i``'s best hit into the output arrays (left as a miss when ``prim < 0``)."""
-    if prim >= 0:
-        out_t[i] = t
-        out_prim[i] = prim
-        out_u[i] = u
-        out_v[i] = v
-
-
 def _any_dask(*values) -> bool:
     """Whether any value is a Dask collection, decided without importing Dask."""
     return any(type(value).__module__.split(".")[0] == "dask" for value in values)
@@ -81,9 +40,9 @@ class Accelerator(PointQueries):
     """A built acceleration structure over a scene.
 
     Subclasses set :attr:`method`, fill :attr:`build_seconds`, and implement
-    :meth:`_trace` (one kernel call filling the output arrays, ray ``i`` of the
-    batch into row ``batch.hit_slot[i]``) and
-    :meth:`_structure_stats`.
+    :meth:`_trace` (one call of the structure's walk with a leaf action of
+    :mod:`.actions`, ray ``i`` of the batch writing into row ``batch.hit_slot[i]``
+    of the action's arrays) and :meth:`_structure_stats`.
     """
 
     method = "?"
@@ -151,6 +110,85 @@ class Accelerator(PointQueries):
         """:meth:`occluded` on array inputs (scenes of instances override it)."""
         return self._cast(origins, directions, t_min, t_max, True, False, reorder)[2] >= 0
 
+    def count(self, origins, directions, t_min=0.0, t_max=np.inf, *, reorder=True) -> np.ndarray:
+        """(n,) int64: how many times each ray crosses the scene within ``[t_min, t_max]``.
+
+        Every primitive counts once per ray however many cells or leaves reference it;
+        a ray through an edge or vertex shared by triangles crosses one of them
+        (:func:`rayaccel.geometry.triangle.cross_triangle`), so that on a closed mesh
+        the count is odd from inside and even from outside; a sphere counts its
+        entry and its exit (a tangent ray twice). Inputs as for :meth:`intersect`;
+        a lazy Dask array when any input is one (:func:`rayaccel.distributed.count`).
+        """
+        if _any_dask(origins, directions, t_min, t_max):
+            from ..distributed import count
+
+            return count(self, origins, directions, t_min, t_max, reorder=reorder)
+        rays = prepare_rays(origins, directions, t_min, t_max)
+        return self._count(rays, self._ordered(rays, reorder))
+
+    def intersect_all(self, origins, directions, t_min=0.0, t_max=np.inf, *, max_hits=None,
+                      reorder=True) -> AllHits:
+        """Every hit of each ray within ``[t_min, t_max]``, the hits :meth:`count` counts.
+
+        Returns an :class:`~rayaccel.rays.AllHits`: ray ``i``'s hits are
+        ``hits.t[hits.offsets[i]:hits.offsets[i + 1]]`` (and so for ``prim``, ``u``,
+        ``v``, ``geom``), sorted by ``t``, equal distances by ``prim``. ``max_hits``
+        (a positive int, or None for all) keeps each ray's nearest ``max_hits``.
+        Inputs as for :meth:`intersect`; Dask arrays in give Dask arrays out
+        (:func:`rayaccel.distributed.intersect_all`).
+        """
+        if max_hits is not None:
+            max_hits = as_positive_int("max_hits", max_hits)
+        if _any_dask(origins, directions, t_min, t_max):
+            from ..distributed import intersect_all
+
+            return intersect_all(self, origins, directions, t_min, t_max, max_hits=max_hits, reorder=reorder)
+        return self._intersect_all(prepare_rays(origins, directions, t_min, t_max), max_hits, reorder)
+
+    def _intersect_all(self, rays, max_hits, reorder) -> AllHits:
+        """:meth:`intersect_all` on validated rays (scenes of instances override it): a counting
+        walk sizes each ray's slots, a second walk fills them."""
+        batch = self._ordered(rays, reorder)
+        counts = self._count(rays, batch)
+        if max_hits is not None:
+            np.minimum(counts, max_hits, out=counts)
+        offsets = np.zeros(len(counts) + 1, dtype=np.int64)
+        np.cumsum(counts, out=offsets[1:])
+        m = int(offsets[-1])
+        t, prim, u, v = np.empty(m), np.empty(m, dtype=np.int64), np.empty(m), np.empty(m)
+        if m:
+            self._trace(batch, False, hit_list(offsets, np.zeros(len(counts), dtype=np.int64), t, prim, u, v),
+                        np.zeros((0, 3), dtype=np.int64))
+        if self.scene.kind == SPHERE and m:
+            ray = np.repeat(np.arange(len(counts)), counts)
+            sphere_hit_coords(self.scene.geometry, rays.origins[ray], rays.directions[ray], t, prim, u, v)
+        return AllHits(offsets, t, prim, u, v, np.zeros(m, dtype=np.int64))
+
+    def _count(self, rays, batch) -> np.ndarray:
+        counts = np.zeros(len(rays.origins), dtype=np.int64)
+        if len(counts):
+            self._trace(batch, False, hit_count(counts), np.zeros((0, 3), dtype=np.int64))
+        return counts
+
+    def _ordered(self, rays, reorder):
+        """The batch to trace: ``rays`` in a coherent order when asked for and worth it."""
+        return coherent_batch(rays, *self.scene_box) if reorder and len(rays.origins) >= MIN_RAYS else rays
+
+    def _mailboxes_for(self, action) -> MailboxPool:
+        """The mailboxes of a walk with ``action``: the structure's own for the closest hit (none
+        when it has none or they are off: a primitive met again is still the candidate), and
+        always some for counting and collecting, which must see each primitive once per ray."""
+        own = getattr(self, "mailboxes", None)
+        if action.mode == NEAREST:
+            return own if own is not None else MailboxPool(0, enabled=False)
+        if own is not None and own.enabled:
+            return own
+        pool = self.__dict__.get("_unique_mailboxes")
+        if pool is None:
+            pool = self.__dict__.setdefault("_unique_mailboxes", MailboxPool(len(self.scene)))
+        return pool
+
     def save(self, path) -> None:
         """Write the built structure, its scene and options to one file (:mod:`rayaccel.persist`);
         ``rayaccel.load_accelerator(path)`` reads it back without rebuilding."""
@@ -182,9 +220,8 @@ class Accelerator(PointQueries):
         u = np.full(n, np.nan) if coordinates else np.empty(n)
         v = np.full(n, np.nan) if coordinates else np.empty(n)
         work = np.zeros((n if counters else 0, 3), dtype=np.int64)
-        batch = coherent_batch(rays, *self.scene_box) if reorder and n >= MIN_RAYS else rays
         if n:
-            self._trace(batch, any_hit, t, prim, u, v, work)
+            self._trace(self._ordered(rays, reorder), any_hit, nearest_hit(t, prim, u, v), work)
         return rays, t, prim, u, v, work
 
     @functools.cached_property
@@ -201,7 +238,7 @@ class Accelerator(PointQueries):
         self.scene_box = bounds.scene_lo, bounds.scene_hi
         return bounds
 
-    def _trace(self, batch, any_hit, t, prim, u, v, work) -> None:
+    def _trace(self, batch, any_hit, action, work) -> None:
         raise NotImplementedError
 
     def _structure_stats(self) -> dict:

@@ -6,17 +6,18 @@ import numpy as np
 from numba import prange
 
 from .._jit import parallel_kernel
-from ..geometry.primitive import intersect_prim, ray_setup
+from ..geometry.primitive import ray_setup
 from ..geometry.winding import prim_winding
-from .base import Accelerator, is_closer, store_hit
+from .actions import finish_ray, visit_prim
+from .base import Accelerator
 from .point_actions import nearest_in_refs
 
 __all__ = ["BruteForce", "brute_force_kernel", "brute_force_nearest_kernel", "brute_force_winding_kernel"]
 
 
 @parallel_kernel
-def brute_force_kernel(kind, geom, origins, directions, t_min, t_max, hit_slot, any_hit, out_t, out_prim, out_u, out_v,
-                       work):
+def brute_force_kernel(kind, geom, origins, directions, t_min, t_max, hit_slot, any_hit, action, work):
+    """Every ray against every primitive, the leaf action (:mod:`.actions`) applied to each."""
     n_prims = geom.shape[0]
     for i in prange(origins.shape[0]):
         ray = ray_setup(origins[i, 0], origins[i, 1], origins[i, 2],
@@ -28,12 +29,11 @@ def brute_force_kernel(kind, geom, origins, directions, t_min, t_max, hit_slot, 
         tests = 0
         for prim in range(n_prims):
             tests += 1
-            t, u, v = intersect_prim(kind, geom, prim, ray, t_min[i], best_t)
-            if is_closer(t, prim, best_t, best_prim):
-                best_t, best_prim, best_u, best_v = t, prim, u, v
-                if any_hit:
-                    break
-        store_hit(hit_slot[i], best_t, best_prim, best_u, best_v, out_t, out_prim, out_u, out_v)
+            best_t, best_prim, best_u, best_v, stop = visit_prim(action, hit_slot[i], kind, geom, prim, prim, ray,
+                                                                 t_min[i], best_t, best_prim, best_u, best_v, any_hit)
+            if stop:
+                break
+        finish_ray(action, hit_slot[i], best_t, best_prim, best_u, best_v)
         if work.shape[0] > 0:
             work[hit_slot[i], 1] = tests
 
@@ -69,8 +69,8 @@ class BruteForce(Accelerator):
     def __init__(self, scene):
         super().__init__(scene, {})
 
-    def _trace(self, batch, any_hit, t, prim, u, v, work):
-        brute_force_kernel(self.scene.kind, self.scene.geometry, *batch, any_hit, t, prim, u, v, work)
+    def _trace(self, batch, any_hit, action, work):
+        brute_force_kernel(self.scene.kind, self.scene.geometry, *batch, any_hit, action, work)
 
     def _nearest(self, points, limit_d2, out_d2, out_prim):
         """Point queries test every primitive, too; the winding number is the exact sum."""

@@ -144,7 +144,7 @@ class BoundingVolumeHierarchy(Accelerator):
     def _build(self, prim_bounds, max_leaf_size, traversal_cost, intersection_cost, **options):
         raise NotImplementedError
 
-    def _trace(self, batch, any_hit, t, prim, u, v, work):
+    def _trace(self, batch, any_hit, action, work):
         b = self.bvh
         rows = numba.config.NUMBA_NUM_THREADS
         if self.wide is not None:
@@ -152,13 +152,13 @@ class BoundingVolumeHierarchy(Accelerator):
             wide_trace_kernel(b.node_records, self.wide, self.wide.view(np.int32), b.prim_order, self.scene.kind,
                               self.geometry, *batch, any_hit,
                               np.empty((rows, depth), dtype=np.int32), np.empty((rows, depth), dtype=np.int32),
-                              np.empty((rows, depth)), t, prim, u, v, work)
+                              np.empty((rows, depth)), action, work)
             return
         stack_node = np.empty((rows, self.max_depth + 2), dtype=np.int32)
         stack_t = np.empty((rows, self.max_depth + 2))
         bvh_trace_kernel(self.bounds_kind, b.node_records, self._volume_rows, b.node_records.view(np.int32),
                          b.prim_order, self.scene.kind, self.geometry, KDOP_NORMALS, *batch, any_hit, stack_node,
-                         stack_t, t, prim, u, v, work)
+                         stack_t, action, work)
 
     def _nearest(self, points, limit_d2, out_d2, out_prim):
         """The walk by distance of :mod:`.nearest` over the binary tree."""

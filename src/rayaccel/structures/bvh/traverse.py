@@ -21,9 +21,9 @@ from numba import prange
 
 from ..._jit import inline_kernel, parallel_kernel, thread_id
 from ...geometry.kdop import KDOP_NORMALS
-from ...geometry.primitive import intersect_prim, ray_setup
+from ...geometry.primitive import ray_setup
 from ...geometry.sphere import sphere_span
-from ..base import is_closer, store_hit
+from ..actions import finish_ray, visit_prim
 
 __all__ = ["BOX", "SPHERE_VOLUME", "KDOP", "KDOP_NORMALS", "tighten", "enter_box", "volume_ray_setup",
            "bvh_trace_kernel"]
@@ -119,12 +119,13 @@ def volume_ray_setup(ox, oy, oz, dx, dy, dz, normals, with_diagonals):
 
 @parallel_kernel
 def bvh_trace_kernel(bounds_kind, node_box, node_volume, node_links, prim_order, kind, geom,
-                     normals, origins, directions, t_min, t_max, hit_slot, any_hit, stack_node, stack_t,
-                     out_t, out_prim, out_u, out_v, work):
+                     normals, origins, directions, t_min, t_max, hit_slot, any_hit, stack_node, stack_t, action,
+                     work):
     """Trace every ray through the BVH; ``geom`` is in leaf order (``geom[prim_order]``).
 
     ``node_box`` is the packed float32 record array of :func:`.layout.pack_nodes`
-    and ``node_links`` the same memory seen as int32 (columns 6 and 7: first, count).
+    and ``node_links`` the same memory seen as int32 (columns 6 and 7: first, count). At a
+    leaf each primitive gets the leaf action (:mod:`..actions`).
     """
     count_work = work.shape[0] > 0
     for i in prange(origins.shape[0]):
@@ -152,11 +153,11 @@ def bvh_trace_kernel(bounds_kind, node_box, node_volume, node_links, prim_order,
                 first = node_links[node, 6]
                 for k in range(first, first + count):
                     n_tests += 1
-                    t, u, v = intersect_prim(kind, geom, k, ray, ray_t_min, best_t)
-                    if is_closer(t, prim_order[k], best_t, best_prim):
-                        best_t, best_prim, best_u, best_v = t, prim_order[k], u, v
-                        if any_hit:
-                            break
+                    best_t, best_prim, best_u, best_v, stop = visit_prim(action, hit_slot[i], kind, geom, k,
+                                                                         prim_order[k], ray, ray_t_min, best_t,
+                                                                         best_prim, best_u, best_v, any_hit)
+                    if stop:
+                        break
                 if any_hit and best_prim >= 0:
                     break
                 node = -1
@@ -182,7 +183,7 @@ def bvh_trace_kernel(bounds_kind, node_box, node_volume, node_links, prim_order,
                 sp -= 1
                 if stack_t[tid, sp] <= best_t:
                     node = stack_node[tid, sp]
-        store_hit(hit_slot[i], best_t, best_prim, best_u, best_v, out_t, out_prim, out_u, out_v)
+        finish_ray(action, hit_slot[i], best_t, best_prim, best_u, best_v)
         if count_work:
             work[hit_slot[i], 0] = n_nodes
             work[hit_slot[i], 1] = n_tests

@@ -26,8 +26,8 @@ import numpy as np
 from numba import prange
 
 from ..._jit import inline_kernel, parallel_kernel, prefetch, thread_id
-from ...geometry.primitive import intersect_prim, ray_setup
-from ..base import is_closer, store_hit
+from ...geometry.primitive import ray_setup
+from ..actions import finish_ray, visit_prim
 from .traverse import enter_box
 from .wide_slab import enter_children
 
@@ -60,11 +60,12 @@ def _push(records, geom, stack_link, stack_count, stack_t, tid, sp, t, link, cou
 
 @parallel_kernel
 def wide_trace_kernel(root_box, records, links, prim_order, kind, geom, origins, directions, t_min, t_max, hit_slot,
-                      any_hit, stack_link, stack_count, stack_t, out_t, out_prim, out_u, out_v, work):
+                      any_hit, stack_link, stack_count, stack_t, action, work):
     """Trace every ray through the wide BVH; ``geom`` is in leaf order (``geom[prim_order]``),
     ``links`` is ``records`` seen as int32, and row 0 of ``root_box`` (a binary node record)
     the whole tree's box, which a ray must enter before the root's four children are
-    tested. Counters: wide nodes visited, primitive tests."""
+    tested. Each primitive of a leaf gets the leaf action (:mod:`..actions`). Counters:
+    wide nodes visited, primitive tests."""
     count_work = work.shape[0] > 0
     for i in prange(origins.shape[0]):
         ox, oy, oz = origins[i, 0], origins[i, 1], origins[i, 2]
@@ -128,14 +129,14 @@ def wide_trace_kernel(root_box, records, links, prim_order, kind, geom, origins,
                 first = stack_link[tid, sp]
                 for k in range(first, first + count):
                     n_tests += 1
-                    t, u, v = intersect_prim(kind, geom, k, ray, ray_t_min, best_t)
-                    if is_closer(t, prim_order[k], best_t, best_prim):
-                        best_t, best_prim, best_u, best_v = t, prim_order[k], u, v
-                        if any_hit:
-                            break
+                    best_t, best_prim, best_u, best_v, stop = visit_prim(action, hit_slot[i], kind, geom, k,
+                                                                         prim_order[k], ray, ray_t_min, best_t,
+                                                                         best_prim, best_u, best_v, any_hit)
+                    if stop:
+                        break
                 if any_hit and best_prim >= 0:
                     sp = 0
-        store_hit(hit_slot[i], best_t, best_prim, best_u, best_v, out_t, out_prim, out_u, out_v)
+        finish_ray(action, hit_slot[i], best_t, best_prim, best_u, best_v)
         if count_work:
             work[hit_slot[i], 0] = n_nodes
             work[hit_slot[i], 1] = n_tests

@@ -80,11 +80,11 @@ class UniformGrid(Accelerator):
             raise ValueError(f"resolution {tuple(res)} has more than 2**27 cells")
         return res.astype(np.int64)
 
-    def _trace(self, batch, any_hit, t, prim, u, v, work):
+    def _trace(self, batch, any_hit, action, work):
         g = self.grid
-        with self.mailboxes.lend(len(batch.origins)) as (mailbox, base):
+        with self._mailboxes_for(action).lend(len(batch.origins)) as (mailbox, base):
             grid_trace_kernel(g.lo, g.hi, g.res, g.cell_size, g.cell_first, g.cell_prims,
-                              self.scene.kind, self.scene.geometry, *batch, any_hit, mailbox, base, t, prim, u, v, work)
+                              self.scene.kind, self.scene.geometry, *batch, any_hit, mailbox, base, action, work)
 
     def _nearest(self, points, limit_d2, out_d2, out_prim):
         """Cells searched outward in shells (:mod:`.nearest`)."""

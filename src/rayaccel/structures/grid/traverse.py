@@ -24,7 +24,7 @@ from numba import prange
 from ..._jit import inline_kernel, kernel, parallel_kernel, thread_id
 from ...geometry.box import clip_to_box
 from ...geometry.primitive import ray_setup
-from ..base import intersect_references, store_hit
+from ..actions import finish_ray, intersect_references
 
 __all__ = ["axis_start", "dda_step", "grid_trace_kernel"]
 
@@ -64,7 +64,7 @@ def dda_step(cx, cy, cz, next_x, next_y, next_z, step_x, step_y, step_z, delta_x
 @parallel_kernel
 def grid_trace_kernel(grid_lo, grid_hi, res, cell_size, cell_first, cell_prims, kind, geom,
                       origins, directions, t_min, t_max, hit_slot, any_hit, mailbox, ray_id_base,
-                      out_t, out_prim, out_u, out_v, work):
+                      action, work):
     """Trace every ray.
 
     ``mailbox`` is (threads, n_prims), or empty to disable mailboxing; ray ``i``
@@ -97,8 +97,8 @@ def grid_trace_kernel(grid_lo, grid_hi, res, cell_size, cell_first, cell_prims, 
             n_cells += 1
             flat = cx + nx * (cy + ny * cz)
             best_t, best_prim, best_u, best_v, n_tests, n_skips = intersect_references(
-                cell_first[flat], cell_first[flat + 1], cell_prims, mailbox, tid, stamp, kind, geom, ray, t_min[i],
-                best_t, best_prim, best_u, best_v, n_tests, n_skips, any_hit)
+                action, hit_slot[i], cell_first[flat], cell_first[flat + 1], cell_prims, mailbox, tid, stamp, kind,
+                geom, ray, t_min[i], best_t, best_prim, best_u, best_v, n_tests, n_skips, any_hit)
             if any_hit and best_prim >= 0:
                 break
             cell_exit = min(next_x, next_y, next_z)
@@ -108,7 +108,7 @@ def grid_trace_kernel(grid_lo, grid_hi, res, cell_size, cell_first, cell_prims, 
                                                                   step_z, delta_x, delta_y, delta_z, res)
             if not inside:
                 break
-        store_hit(hit_slot[i], best_t, best_prim, best_u, best_v, out_t, out_prim, out_u, out_v)
+        finish_ray(action, hit_slot[i], best_t, best_prim, best_u, best_v)
         if count_work:
             work[hit_slot[i], 0] = n_cells
             work[hit_slot[i], 1] = n_tests

@@ -60,16 +60,16 @@ class HierarchicalGrid(Accelerator):
         self.build_seconds = time.perf_counter() - start
         self.mailboxes = MailboxPool(len(scene), enabled=options["mailbox"])
 
-    def _trace(self, batch, any_hit, t, prim, u, v, work):
+    def _trace(self, batch, any_hit, action, work):
         h = self.hgrid
         rows = numba.config.NUMBA_NUM_THREADS
         levels = int(h.grid_level.max()) + 1
         saved_int = np.empty((rows, levels, 7), dtype=np.int64)
         saved_float = np.empty((rows, levels, 7))
-        with self.mailboxes.lend(len(batch.origins)) as (mailbox, base):
+        with self._mailboxes_for(action).lend(len(batch.origins)) as (mailbox, base):
             hgrid_trace_kernel(h.lo, h.hi, h.grid_lo, h.grid_res, h.grid_cell_size, h.grid_cell_base, h.cell_child,
                                h.cell_first, h.cell_prims, self.scene.kind, self.scene.geometry, *batch, any_hit,
-                               mailbox, base, saved_int, saved_float, t, prim, u, v, work)
+                               mailbox, base, saved_int, saved_float, action, work)
 
     def _nearest(self, points, limit_d2, out_d2, out_prim):
         """The top grid searched outward in shells, nested grids scanned with pruning (:mod:`..grid.nearest`)."""

@@ -18,7 +18,7 @@ from numba import prange
 from ..._jit import parallel_kernel, thread_id
 from ...geometry.box import clip_to_box
 from ...geometry.primitive import ray_setup
-from ..base import intersect_references, store_hit
+from ..actions import finish_ray, intersect_references
 from ..grid.traverse import axis_start, dda_step
 
 __all__ = ["hgrid_trace_kernel"]
@@ -27,7 +27,7 @@ __all__ = ["hgrid_trace_kernel"]
 @parallel_kernel
 def hgrid_trace_kernel(lo, hi, grid_lo, grid_res, grid_cell_size, grid_cell_base, cell_child, cell_first, cell_prims,
                        kind, geom, origins, directions, t_min, t_max, hit_slot, any_hit, mailbox, ray_id_base,
-                       saved_int, saved_float, out_t, out_prim, out_u, out_v, work):
+                       saved_int, saved_float, action, work):
     """Trace every ray; ``saved_int`` (threads, levels, 7) int64 and ``saved_float``
     (threads, levels, 7) hold the outer walks' DDA states; ``mailbox`` as in the uniform grid."""
     count_work = work.shape[0] > 0
@@ -84,8 +84,8 @@ def hgrid_trace_kernel(lo, hi, grid_lo, grid_res, grid_cell_size, grid_cell_base
                                                          grid_res[g, 2])
                 continue
             best_t, best_prim, best_u, best_v, n_tests, n_skips = intersect_references(
-                cell_first[cell], cell_first[cell + 1], cell_prims, mailbox, tid, stamp, kind, geom, ray, t_min[i],
-                best_t, best_prim, best_u, best_v, n_tests, n_skips, any_hit)
+                action, hit_slot[i], cell_first[cell], cell_first[cell + 1], cell_prims, mailbox, tid, stamp, kind,
+                geom, ray, t_min[i], best_t, best_prim, best_u, best_v, n_tests, n_skips, any_hit)
             if (any_hit and best_prim >= 0) or (best_prim >= 0 and best_t <= cell_exit):
                 break
             done = False
@@ -119,7 +119,7 @@ def hgrid_trace_kernel(lo, hi, grid_lo, grid_res, grid_cell_size, grid_cell_base
                 stretch_end = saved_float[tid, level, 6]
             if done:
                 break
-        store_hit(hit_slot[i], best_t, best_prim, best_u, best_v, out_t, out_prim, out_u, out_v)
+        finish_ray(action, hit_slot[i], best_t, best_prim, best_u, best_v)
         if count_work:
             work[hit_slot[i], 0] = n_cells
             work[hit_slot[i], 1] = n_tests

@@ -68,15 +68,15 @@ class GridBvh(Accelerator):
         self.build_seconds = time.perf_counter() - start
         self.mailboxes = MailboxPool(len(scene), enabled=options["mailbox"])
 
-    def _trace(self, batch, any_hit, t, prim, u, v, work):
+    def _trace(self, batch, any_hit, action, work):
         h = self.hybrid
         rows = numba.config.NUMBA_NUM_THREADS
         stack_node = np.empty((rows, self.bvh_depth + 2), dtype=np.int32)
         stack_t = np.empty((rows, self.bvh_depth + 2))
-        with self.mailboxes.lend(len(batch.origins)) as (mailbox, base):
+        with self._mailboxes_for(action).lend(len(batch.origins)) as (mailbox, base):
             grid_bvh_trace_kernel(h.lo, h.hi, h.res, h.cell_size, h.cell_first, h.cell_prims, h.cell_root, h.node_box,
                                   h.node_first, h.node_count, self.scene.kind, self.scene.geometry, *batch, any_hit,
-                                  mailbox, base, stack_node, stack_t, t, prim, u, v, work)
+                                  mailbox, base, stack_node, stack_t, action, work)
 
     def _nearest(self, points, limit_d2, out_d2, out_prim):
         """Grid cells searched outward in shells, a dense cell's BVH walked by distance (:mod:`..grid.nearest`)."""

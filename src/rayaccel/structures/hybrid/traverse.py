@@ -17,7 +17,8 @@ from numba import prange
 from ..._jit import parallel_kernel, thread_id
 from ...geometry.box import clip_to_box
 from ...geometry.primitive import ray_setup
-from ..base import EXIT_MARGIN, intersect_references, store_hit
+from ..actions import finish_ray, intersect_references
+from ..base import EXIT_MARGIN
 from ..bvh.traverse import enter_box
 from ..grid.traverse import axis_start, dda_step
 
@@ -27,7 +28,7 @@ __all__ = ["grid_bvh_trace_kernel"]
 @parallel_kernel
 def grid_bvh_trace_kernel(lo, hi, res, cell_size, cell_first, cell_prims, cell_root, node_box, node_first, node_count,
                           kind, geom, origins, directions, t_min, t_max, hit_slot, any_hit, mailbox, ray_id_base,
-                          stack_node, stack_t, out_t, out_prim, out_u, out_v, work):
+                          stack_node, stack_t, action, work):
     """Trace every ray; ``mailbox`` as in the uniform grid, stacks (threads, depth + 2)."""
     nx, ny, nz = res[0], res[1], res[2]
     count_work = work.shape[0] > 0
@@ -62,8 +63,8 @@ def grid_bvh_trace_kernel(lo, hi, res, cell_size, cell_first, cell_prims, cell_r
             root = cell_root[cell]
             if root < 0:
                 best_t, best_prim, best_u, best_v, n_tests, n_skips = intersect_references(
-                    cell_first[cell], cell_first[cell + 1], cell_prims, mailbox, tid, stamp, kind, geom, ray,
-                    ray_t_min, best_t, best_prim, best_u, best_v, n_tests, n_skips, any_hit)
+                    action, hit_slot[i], cell_first[cell], cell_first[cell + 1], cell_prims, mailbox, tid, stamp, kind,
+                    geom, ray, ray_t_min, best_t, best_prim, best_u, best_v, n_tests, n_skips, any_hit)
             else:
                 node = root
                 sp = 0
@@ -76,8 +77,8 @@ def grid_bvh_trace_kernel(lo, hi, res, cell_size, cell_first, cell_prims, cell_r
                     if count > 0:
                         first = node_first[node]
                         best_t, best_prim, best_u, best_v, n_tests, n_skips = intersect_references(
-                            first, first + count, cell_prims, mailbox, tid, stamp, kind, geom, ray, ray_t_min,
-                            best_t, best_prim, best_u, best_v, n_tests, n_skips, any_hit)
+                            action, hit_slot[i], first, first + count, cell_prims, mailbox, tid, stamp, kind, geom,
+                            ray, ray_t_min, best_t, best_prim, best_u, best_v, n_tests, n_skips, any_hit)
                         if any_hit and best_prim >= 0:
                             break
                         node = -1
@@ -108,7 +109,7 @@ def grid_bvh_trace_kernel(lo, hi, res, cell_size, cell_first, cell_prims, cell_r
             if not inside:
                 break
             t_cell = cell_exit
-        store_hit(hit_slot[i], best_t, best_prim, best_u, best_v, out_t, out_prim, out_u, out_v)
+        finish_ray(action, hit_slot[i], best_t, best_prim, best_u, best_v)
         if count_work:
             work[hit_slot[i], 0] = n_steps
             work[hit_slot[i], 1] = n_tests

@@ -21,7 +21,7 @@ import time
 import numpy as np
 
 from ..._jit import thread_count
-from ...rays import Hits, RayCounters, prepare_rays
+from ...rays import AllHits, Hits, RayCounters, prepare_rays
 from ...stats import box_area, surface_area_stats
 from ..base import Accelerator
 from ..bvh.build_top_down import SAH_BINNED, build_top_down
@@ -159,6 +159,60 @@ class InstancedScene(Accelerator):
 
     def _winding_number(self, points, accuracy):
         return scene_winding_number(self, points, accuracy)
+
+    def _ordered(self, rays, reorder):
+        """The rays as given: each object's structure orders its own pairs."""
+        return rays
+
+    def _object_pairs(self, rays):
+        """Per object, the pairs (ray, instance) whose instance box the ray enters, and those rays
+        moved into the object's frame: ``(object, ray, instance, origins, directions)``."""
+        offsets, instance, _, _ = instance_candidates(self.top, self.top_depth, rays.origins, rays.directions,
+                                                      rays.t_min, rays.t_max)
+        ray = np.repeat(np.arange(len(rays.origins)), np.diff(offsets))
+        obj = self.instance_object[instance]
+        by_object = np.argsort(obj, kind="stable")
+        bounds = np.searchsorted(obj[by_object], np.arange(len(self.objects) + 1))
+        for o in np.flatnonzero(np.diff(bounds)):
+            chosen = by_object[bounds[o]:bounds[o + 1]]
+            local_o, local_d = object_rays(self.inverse, instance[chosen], ray[chosen], rays.origins, rays.directions)
+            yield self.objects[o], ray[chosen], instance[chosen], local_o, local_d
+
+    def _count(self, rays, batch) -> np.ndarray:
+        """:meth:`Accelerator.count`: each object counts the crossings of the rays that enter its
+        instances' boxes, in its own frame."""
+        counts = np.zeros(len(rays.origins), dtype=np.int64)
+        for obj, ray, _, local_o, local_d in self._object_pairs(rays):
+            np.add.at(counts, ray, obj.count(local_o, local_d, rays.t_min[ray], rays.t_max[ray]))
+        return counts
+
+    def _intersect_all(self, rays, max_hits, reorder) -> AllHits:
+        """:meth:`Accelerator.intersect_all`: each object lists the hits of the rays that enter its
+        instances' boxes (its nearest ``max_hits`` each), then each ray's are merged, sorted by
+        ``(t, geom, prim)``, and cut to ``max_hits``."""
+        n = len(rays.origins)
+        parts = []
+        for obj, ray, instance, local_o, local_d in self._object_pairs(rays):
+            found = obj.intersect_all(local_o, local_d, rays.t_min[ray], rays.t_max[ray], max_hits=max_hits,
+                                      reorder=reorder)
+            pair = found.ray
+            parts.append((ray[pair], instance[pair], found.t, found.prim, found.u, found.v))
+        if parts:
+            ray, geom, t, prim, u, v = (np.concatenate(column) for column in zip(*parts))
+        else:
+            ray, geom, prim = (np.zeros(0, dtype=np.int64) for _ in range(3))
+            t, u, v = (np.zeros(0) for _ in range(3))
+        order = np.lexsort((prim, geom, t, ray))
+        ray, geom, t, prim, u, v = ray[order], geom[order], t[order], prim[order], u[order], v[order]
+        counts = np.bincount(ray, minlength=n)
+        if max_hits is not None:
+            first = np.cumsum(counts) - counts
+            keep = np.arange(len(ray)) - first[ray] < max_hits
+            ray, geom, t, prim, u, v = ray[keep], geom[keep], t[keep], prim[keep], u[keep], v[keep]
+            counts = np.minimum(counts, max_hits)
+        offsets = np.zeros(n + 1, dtype=np.int64)
+        np.cumsum(counts, out=offsets[1:])
+        return AllHits(offsets, t, prim, u, v, geom)
 
     def _top_stats(self) -> dict:
         box, first, count, _ = self.top

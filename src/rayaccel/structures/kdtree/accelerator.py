@@ -226,13 +226,14 @@ class KdTree(Accelerator):
         """(n_nodes, 6) cell of every node, lo and hi."""
         return self._cells
 
-    def _trace(self, batch, any_hit, t, prim, u, v, work):
+    def _trace(self, batch, any_hit, action, work):
         k = self.kd
         rows = numba.config.NUMBA_NUM_THREADS
         stack_node = np.empty((rows, self.max_depth + 2), dtype=np.int32)
         stack_t = np.empty((rows, self.max_depth + 2, 2))
-        kdtree_trace_kernel(k.lo, k.hi, k.node_split, k.node_link, k.leaf_prims, self.scene.kind, self.scene.geometry,
-                            *batch, any_hit, stack_node, stack_t, t, prim, u, v, work)
+        with self._mailboxes_for(action).lend(len(batch.origins)) as (mailbox, base):
+            kdtree_trace_kernel(k.lo, k.hi, k.node_split, k.node_link, k.leaf_prims, self.scene.kind,
+                                self.scene.geometry, *batch, any_hit, mailbox, base, stack_node, stack_t, action, work)
 
     def _nearest(self, points, limit_d2, out_d2, out_prim):
         """Near side of each plane first (:mod:`.nearest`)."""

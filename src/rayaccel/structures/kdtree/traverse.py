@@ -22,13 +22,13 @@ Stacks are preallocated per thread, as deep as the tree.
 
 from __future__ import annotations
 
-import numpy as np
 from numba import prange
 
 from ..._jit import inline_kernel, parallel_kernel, thread_id
 from ...geometry.box import clip_to_box
 from ...geometry.primitive import ray_setup
-from ..base import EXIT_MARGIN, intersect_references, settled_before, store_hit
+from ..actions import finish_ray, intersect_references
+from ..base import EXIT_MARGIN, settled_before
 from .layout import LEAF
 
 __all__ = ["kdtree_trace_kernel"]
@@ -41,10 +41,10 @@ def _margin(t):
 
 @parallel_kernel
 def kdtree_trace_kernel(lo, hi, node_split, node_link, leaf_prims, kind, geom, origins, directions, t_min, t_max,
-                        hit_slot, any_hit, stack_node, stack_t, out_t, out_prim, out_u, out_v, work):
-    """Trace every ray; ``stack_node`` (threads, depth) int32 and ``stack_t`` (threads, depth, 2)."""
+                        hit_slot, any_hit, mailbox, ray_id_base, stack_node, stack_t, action, work):
+    """Trace every ray; ``stack_node`` (threads, depth) int32 and ``stack_t`` (threads, depth, 2);
+    ``mailbox`` as in the uniform grid (empty for the closest hit, which needs none)."""
     count_work = work.shape[0] > 0
-    no_mailbox = np.zeros((0, 0), dtype=np.int64)
     for i in prange(origins.shape[0]):
         o = (origins[i, 0], origins[i, 1], origins[i, 2])
         d = (directions[i, 0], directions[i, 1], directions[i, 2])
@@ -98,8 +98,8 @@ def kdtree_trace_kernel(lo, hi, node_split, node_link, leaf_prims, kind, geom, o
                 continue
             first = node_link[node, 0]
             best_t, best_prim, best_u, best_v, n_tests, _ = intersect_references(
-                first, first + (word >> 2), leaf_prims, no_mailbox, tid, 0, kind, geom, ray, ray_t_min, best_t,
-                best_prim, best_u, best_v, n_tests, 0, any_hit)
+                action, hit_slot[i], first, first + (word >> 2), leaf_prims, mailbox, tid, ray_id_base + i, kind, geom,
+                ray, ray_t_min, best_t, best_prim, best_u, best_v, n_tests, 0, any_hit)
             if any_hit and best_prim >= 0:
                 break
             # Once the best hit lies before this leaf's exit, every cell pushed by a plane
@@ -113,7 +113,7 @@ def kdtree_trace_kernel(lo, hi, node_split, node_link, leaf_prims, kind, geom, o
                     t0 = stack_t[tid, sp, 0]
                     t1 = stack_t[tid, sp, 1]
                     break
-        store_hit(hit_slot[i], best_t, best_prim, best_u, best_v, out_t, out_prim, out_u, out_v)
+        finish_ray(action, hit_slot[i], best_t, best_prim, best_u, best_v)
         if count_work:
             work[hit_slot[i], 0] = n_nodes
             work[hit_slot[i], 1] = n_tests

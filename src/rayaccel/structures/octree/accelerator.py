@@ -64,13 +64,14 @@ class Octree(Accelerator):
         self.max_depth = int(depth)
         self.build_seconds = time.perf_counter() - start
 
-    def _trace(self, batch, any_hit, t, prim, u, v, work):
+    def _trace(self, batch, any_hit, action, work):
         o = self.tree
         rows = numba.config.NUMBA_NUM_THREADS
         stack_node = np.empty((rows, 3 * self.max_depth + 4), dtype=np.int32)
         stack_t = np.empty((rows, 3 * self.max_depth + 4, 2))
-        octree_trace_kernel(o.lo, o.hi, o.node_center, o.node_link, o.leaf_prims, self.scene.kind, self.scene.geometry,
-                            *batch, any_hit, stack_node, stack_t, t, prim, u, v, work)
+        with self._mailboxes_for(action).lend(len(batch.origins)) as (mailbox, base):
+            octree_trace_kernel(o.lo, o.hi, o.node_center, o.node_link, o.leaf_prims, self.scene.kind,
+                                self.scene.geometry, *batch, any_hit, mailbox, base, stack_node, stack_t, action, work)
 
     def _nearest(self, points, limit_d2, out_d2, out_prim):
         """Children nearest first by the distance to their cells (:mod:`.nearest`)."""

@@ -19,7 +19,8 @@ from numba import prange
 from ..._jit import inline_kernel, parallel_kernel, thread_id
 from ...geometry.box import clip_to_box
 from ...geometry.primitive import ray_setup
-from ..base import intersect_references, settled_before, store_hit
+from ..actions import finish_ray, intersect_references
+from ..base import settled_before
 
 __all__ = ["octree_trace_kernel"]
 
@@ -41,10 +42,10 @@ def _crossing(o, d, inv, center):
 
 @parallel_kernel
 def octree_trace_kernel(lo, hi, node_center, node_link, leaf_prims, kind, geom, origins, directions, t_min, t_max,
-                        hit_slot, any_hit, stack_node, stack_t, out_t, out_prim, out_u, out_v, work):
-    """Trace every ray; ``stack_node`` (threads, 3 * depth + 4) int32, ``stack_t`` (threads, same, 2)."""
+                        hit_slot, any_hit, mailbox, ray_id_base, stack_node, stack_t, action, work):
+    """Trace every ray; ``stack_node`` (threads, 3 * depth + 4) int32, ``stack_t`` (threads, same, 2);
+    ``mailbox`` as in the uniform grid (empty for the closest hit, which needs none)."""
     count_work = work.shape[0] > 0
-    no_mailbox = np.zeros((0, 0), dtype=np.int64)
     for i in prange(origins.shape[0]):
         ox, oy, oz = origins[i, 0], origins[i, 1], origins[i, 2]
         dx, dy, dz = directions[i, 0], directions[i, 1], directions[i, 2]
@@ -111,8 +112,8 @@ def octree_trace_kernel(lo, hi, node_center, node_link, leaf_prims, kind, geom, 
             else:
                 first = node_link[node, 0]
                 best_t, best_prim, best_u, best_v, n_tests, _ = intersect_references(
-                    first, first + count, leaf_prims, no_mailbox, tid, 0, kind, geom, ray, ray_t_min, best_t,
-                    best_prim, best_u, best_v, n_tests, 0, any_hit)
+                    action, hit_slot[i], first, first + count, leaf_prims, mailbox, tid, ray_id_base + i, kind, geom,
+                    ray, ray_t_min, best_t, best_prim, best_u, best_v, n_tests, 0, any_hit)
                 if (any_hit and best_prim >= 0) or settled_before(best_prim, best_t, t1):
                     break
                 node = -1
@@ -122,7 +123,7 @@ def octree_trace_kernel(lo, hi, node_center, node_link, leaf_prims, kind, geom, 
                     node = stack_node[tid, sp]
                     t0 = stack_t[tid, sp, 0]
                     t1 = stack_t[tid, sp, 1]
-        store_hit(hit_slot[i], best_t, best_prim, best_u, best_v, out_t, out_prim, out_u, out_v)
+        finish_ray(action, hit_slot[i], best_t, best_prim, best_u, best_v)
         if count_work:
             work[hit_slot[i], 0] = n_nodes
             work[hit_slot[i], 1] = n_tests

@@ -1,0 +1,200 @@
+"""What a walk does with the primitives it meets: the leaf action every structure's ray walk shares.
+
+Each structure owns one ray walk (a DDA, a stack traversal); what happens at a
+leaf or cell is :func:`visit_prim`, which branches on the ``mode`` of the
+:class:`Action` it is given (one NamedTuple type for every mode, so each walk
+compiles once, and the branch, the same for every primitive of a batch, is
+predicted):
+
+- ``NEAREST`` keeps the closest hit (equal distances to the lower primitive
+  index), or stops at the first one for any-hit queries;
+- ``COUNT`` counts every crossing in ``[t_min, t_max]``;
+- ``LIST`` writes every crossing into the ray's slots of flat arrays, kept
+  sorted by ``(t, prim)``; once the slots are full it keeps the nearest and
+  lowers the walk's search bound to the farthest kept, as a closest-hit walk
+  lowers it to its best hit.
+
+A walk carries ``(best_t, best_prim, best_u, best_v)``: its search bound and the
+hit that set it (``best_prim < 0`` while the bound is the interval's end), and
+prunes whatever lies beyond ``best_t``. Counting and listing test primitives
+with the crossing test (:func:`rayaccel.geometry.primitive.cross_prim`: each
+crossing of a shared edge or vertex given to one triangle, both crossings of a
+sphere); a primitive met twice (referenced from several cells) must be skipped
+by the walk's mailbox, since these modes would count it again.
+
+Writes into the action's arrays go through small kernels that are called, not
+inlined at Numba's IR level: inlined into a ``prange`` loop, a store into an array
+field of a tuple argument is dropped (Numba 0.68 loses it; LLVM may still inline
+the call). Choosing the action at compile time by its type, through
+``numba.extending.overload``, was tried: the overload, called rather than inlined,
+cost up to half of the kd-tree's closest-hit speed.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+from .._jit import inline_kernel, kernel
+from ..geometry.primitive import cross_prim, intersect_prim
+
+__all__ = ["NEAREST", "COUNT", "LIST", "Action", "nearest_hit", "hit_count", "hit_list", "is_closer", "store_hit",
+           "visit_prim", "finish_ray", "intersect_references"]
+
+NEAREST = 0
+COUNT = 1
+LIST = 2
+
+
+class Action(NamedTuple):
+    """What a walk does with the primitives it meets, and where it writes (per output row ``r``).
+
+    ``mode``: NEAREST, COUNT or LIST. NEAREST: ``t``, ``prim``, ``u``, ``v`` (n,), the best
+    hit of row ``r`` (rows start as misses). COUNT: ``count`` (n,) int64, crossings of row
+    ``r`` (starting at 0). LIST: row ``r`` fills ``t, prim, u, v[offsets[r]:offsets[r + 1]]``,
+    ``count[r]`` (starting at 0) of them so far. Arrays a mode does not use are empty.
+    """
+
+    mode: int
+    t: np.ndarray
+    prim: np.ndarray
+    u: np.ndarray
+    v: np.ndarray
+    count: np.ndarray
+    offsets: np.ndarray
+
+
+_NO_FLOATS = np.zeros(0)
+_NO_INTS = np.zeros(0, dtype=np.int64)
+
+
+def nearest_hit(t, prim, u, v) -> Action:
+    """The closest-hit (or any-hit) action writing into ``t``, ``prim``, ``u``, ``v`` (n,)."""
+    return Action(NEAREST, t, prim, u, v, _NO_INTS, _NO_INTS)
+
+
+def hit_count(count) -> Action:
+    """The counting action adding each row's crossings into ``count`` (n,) int64 zeros."""
+    return Action(COUNT, _NO_FLOATS, _NO_INTS, _NO_FLOATS, _NO_FLOATS, count, _NO_INTS)
+
+
+def hit_list(offsets, fill, t, prim, u, v) -> Action:
+    """The listing action: row ``r`` fills ``t, prim, u, v[offsets[r]:offsets[r + 1]]``, ``fill`` (n,)
+    int64 zeros counting how many so far."""
+    return Action(LIST, t, prim, u, v, fill, offsets)
+
+
+@inline_kernel
+def is_closer(t, prim, best_t, best_prim):
+    """Whether a hit ``(t, prim)`` replaces the best so far. Equal distances go to
+    the lower primitive index, so every structure reports the same primitive as
+    brute force even where a ray meets a shared edge or vertex."""
+    if t == np.inf:
+        return False
+    return best_prim < 0 or t < best_t or (t == best_t and prim < best_prim)
+
+
+@inline_kernel
+def store_hit(i, t, prim, u, v, out_t, out_prim, out_u, out_v):
+    """Write ray ``i``'s best hit into the output arrays (left as a miss when ``prim < 0``)."""
+    if prim >= 0:
+        out_t[i] = t
+        out_prim[i] = prim
+        out_u[i] = u
+        out_v[i] = v
+
+
+@kernel
+def _add_crossings(action, row, n):
+    action.count[row] += n
+
+
+@kernel
+def _store_nearest(action, row, best_t, best_prim, best_u, best_v):
+    store_hit(row, best_t, best_prim, best_u, best_v, action.t, action.prim, action.u, action.v)
+
+
+@kernel
+def _insert(action, row, t, prim, u, v):
+    """Put the crossing ``(t, prim)`` into row ``row``'s sorted slots, dropping the farthest when they
+    are full (or the crossing itself, when it is the farthest); returns whether they are full."""
+    first = action.offsets[row]
+    capacity = action.offsets[row + 1] - first
+    filled = action.count[row]
+    if capacity == 0:
+        return False
+    if filled == capacity:
+        last = first + capacity - 1
+        if not (t < action.t[last] or (t == action.t[last] and prim < action.prim[last])):
+            return True
+        slot = last
+    else:
+        slot = first + filled
+        action.count[row] = filled + 1
+    while slot > first and (action.t[slot - 1] > t or (action.t[slot - 1] == t and action.prim[slot - 1] > prim)):
+        action.t[slot] = action.t[slot - 1]
+        action.prim[slot] = action.prim[slot - 1]
+        action.u[slot] = action.u[slot - 1]
+        action.v[slot] = action.v[slot - 1]
+        slot -= 1
+    action.t[slot] = t
+    action.prim[slot] = prim
+    action.u[slot] = u
+    action.v[slot] = v
+    return filled + 1 >= capacity
+
+
+@inline_kernel
+def visit_prim(action, row, kind, geom, k, prim, ray, t_min, best_t, best_prim, best_u, best_v, any_hit):
+    """Test primitive ``prim`` (row ``k`` of ``geom``) for the ray of output row ``row`` and apply
+    the action; returns ``(best_t, best_prim, best_u, best_v, stop)``, ``stop`` when the walk
+    can end at once (an any-hit query that found one)."""
+    if action.mode == NEAREST:
+        t, u, v = intersect_prim(kind, geom, k, ray, t_min, best_t)
+        if is_closer(t, prim, best_t, best_prim):
+            return t, prim, u, v, any_hit
+        return best_t, best_prim, best_u, best_v, False
+    n, t_first, t_second, u, v = cross_prim(kind, geom, k, ray, t_min, best_t)
+    if n == 0:
+        return best_t, best_prim, best_u, best_v, False
+    if action.mode == COUNT:
+        _add_crossings(action, row, n)
+        return best_t, best_prim, best_u, best_v, False
+    full = _insert(action, row, t_first, prim, u, v)
+    if n == 2:
+        full = _insert(action, row, t_second, prim, u, v)
+    if full:
+        last = action.offsets[row + 1] - 1
+        return action.t[last], action.prim[last], best_u, best_v, False
+    return best_t, best_prim, best_u, best_v, False
+
+
+@inline_kernel
+def finish_ray(action, row, best_t, best_prim, best_u, best_v):
+    """Write what the walk kept for the ray of output row ``row``: the closest hit (the other
+    modes write as they go)."""
+    if action.mode == NEAREST:
+        _store_nearest(action, row, best_t, best_prim, best_u, best_v)
+
+
+@inline_kernel
+def intersect_references(action, row, first, end, refs, mailbox, tid, stamp, kind, geom, ray, t_min, best_t,
+                         best_prim, best_u, best_v, n_tests, n_skips, any_hit):
+    """Visit the primitives ``refs[first:end]`` (a cell's or a leaf's references) with the
+    action, skipping those already stamped in the mailbox, when there is one (an empty
+    array otherwise), and stamping the others; returns the walk's ``(best_t, best_prim,
+    best_u, best_v)`` and the counters ``(tests, skips)``, updated."""
+    for k in range(first, end):
+        prim = refs[k]
+        if mailbox.shape[0] > 0:
+            if mailbox[tid, prim] == stamp:
+                n_skips += 1
+                continue
+            mailbox[tid, prim] = stamp
+        n_tests += 1
+        best_t, best_prim, best_u, best_v, stop = visit_prim(action, row, kind, geom, prim, prim, ray, t_min, best_t,
+                                                             best_prim, best_u, best_v, any_hit)
+        if stop:
+            break
+    return best_t, best_prim, best_u, best_v, n_tests, n_skips
