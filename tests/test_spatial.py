@@ -318,3 +318,17 @@ def test_random_triangle_soups_property(n, seed, method):
     directions[np.abs(directions).sum(axis=1) == 0] = [0.0, 0.0, 1.0]
     assert_same_hits(ra.build(scene, "none").intersect(origins, directions),
                      ra.build(scene, method).intersect(origins, directions))
+
+
+def test_leaves_are_counted_among_the_nodes(small_dragon):
+    origins, directions = random_rays(small_dragon, 300, seed=4)
+    for method in ra.methods():
+        counters = ra.build(small_dragon, method).intersect(origins, directions, counters=True).counters
+        assert (counters.leaves <= counters.nodes).all(), method
+        tested = counters.tests > 0
+        if method != "none":
+            assert (counters.leaves[tested] >= 1).all(), method
+        if method == "grid":
+            np.testing.assert_array_equal(counters.leaves, counters.nodes)
+        if method in ("kdtree", "octree", "bvh-binned"):
+            assert (counters.nodes[tested] > counters.leaves[tested]).any(), method

@@ -43,7 +43,7 @@ __all__ = ["is_dask_array", "intersect", "occluded", "count", "intersect_all", "
 
 _INSTALL = 'pip install "rayaccel[dask]"'
 _HIT_FIELDS = [("t", np.float64), ("prim", np.int64), ("u", np.float64), ("v", np.float64), ("geom", np.int64)]
-_COUNTER_FIELDS = [("nodes", np.int64), ("tests", np.int64), ("mailbox_skips", np.int64)]
+_COUNTER_FIELDS = [(name, np.int64) for name in RayCounters._fields]
 _SHIPPED = weakref.WeakKeyDictionary()
 _ARRAY_QUERIES = {"occluded": np.dtype(bool), "count": np.dtype(np.int64), "intersect_all": None}
 _ALL_FIELDS = [("t", np.float64), ("prim", np.int64), ("u", np.float64), ("v", np.float64), ("geom", np.int64)]

@@ -8,7 +8,7 @@ import numpy as np
 
 from ._validate import as_per_ray, as_points, check_ray_arrays
 
-__all__ = ["RayBatch", "RayCounters", "Hits", "AllHits", "Camera", "prepare_rays", "random_lines"]
+__all__ = ["RayBatch", "RayCounters", "WORK_COLUMNS", "Hits", "AllHits", "Camera", "prepare_rays", "random_lines"]
 
 
 class RayBatch(NamedTuple):
@@ -27,14 +27,23 @@ class RayBatch(NamedTuple):
 class RayCounters(NamedTuple):
     """Per-ray work of one query, each (n,) int64.
 
-    ``nodes``: nodes or cells visited; ``tests``: primitive intersection tests
-    run; ``mailbox_skips``: tests skipped because the primitive was already
-    tested for this ray (grids with mailboxing; zero elsewhere).
+    ``nodes``: nodes or cells visited, leaves included; ``tests``: primitive
+    intersection tests run; ``mailbox_skips``: tests skipped because the primitive
+    was already tested for this ray (structures that reference a primitive from
+    several cells, with mailboxing; zero elsewhere); ``leaves``: the leaves among
+    the nodes (a grid's cells are all leaves, a hierarchical grid's those without a
+    grid of their own), so that ``nodes - leaves`` are the interior traversal steps.
     """
 
     nodes: np.ndarray
     tests: np.ndarray
     mailbox_skips: np.ndarray
+    leaves: np.ndarray
+
+
+WORK_COLUMNS = len(RayCounters._fields)
+"""Columns of the (n, WORK_COLUMNS) int64 array the kernels write counters into, in
+:class:`RayCounters` order."""
 
 
 class Hits(NamedTuple):

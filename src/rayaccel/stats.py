@@ -63,6 +63,7 @@ def measured_stats(accel, origins, directions) -> dict:
     hits = accel.intersect(origins, directions, counters=True)
     return {
         "avg_nodes_per_ray": float(hits.counters.nodes.mean()),
+        "avg_leaves_per_ray": float(hits.counters.leaves.mean()),
         "avg_intersections_per_ray": float(hits.counters.tests.mean()),
         "avg_mailbox_skips_per_ray": float(hits.counters.mailbox_skips.mean()),
         "hit_fraction": float(hits.hit.mean()),

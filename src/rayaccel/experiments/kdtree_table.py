@@ -33,7 +33,8 @@ and intersections costed 20 traversal steps, so that the cost termination
 hardly ever stops a split before the leaf size or the depth limit do (on the
 shipped meshes 2.31-2.44 triangles per non-empty leaf, the lecture's range
 2.31-2.56; with the default options 3.5). ``--method`` tabulates any other
-structure with its default options; grids count cells as interior nodes.
+structure with its default options (a row it has no figure for shows "-"); a grid's
+cells are all leaves.
 """
 
 from __future__ import annotations
@@ -147,14 +148,15 @@ def write_report(columns: list[dict], method: str, out_dir, side: int) -> tuple[
     out_dir.mkdir(parents=True, exist_ok=True)
     lecture = lecture_figures()
     headers = ["", "lecture"] + [c["scene"] for c in columns]
-    table = [[label, lecture.get(key, "")] + [fmt.format(c[key]) for c in columns] for label, key, fmt in ROWS]
+    table = [[label, lecture.get(key, "")] + [fmt.format(c[key]) if key in c else "-" for c in columns]
+             for label, key, fmt in ROWS]
     options = LECTURE_OPTIONS.get(method, {})
     built = ", ".join(f"{k}={v}" for k, v in options.items()) or "default options"
     lines = [f"# The kd-tree table for `{method}` ({built})", "",
              "Whole tree: the SAH sums over every cell a ray meeting the root crosses (what the builder minimises). "
              f"First hit: averaged over {LINES:,} seeded random lines through the scene's box, each traced to its "
              "first hit. Measured rows: camera rays of a camera the object fills; render time of one "
-             f"{side}x{side} frame, primary rays plus one shadow ray per hit and light. Grids count cells as nodes.",
+             f"{side}x{side} frame, primary rays plus one shadow ray per hit and light. A grid's cells are all leaves.",
              "", f"Lecture: {lecture['source']} Our armadillo is the decimated 100k-triangle one; the lecture's "
              "neptune, forest and chair are not available, and the procedural forest scenes stand in.", ""]
     lines += markdown_table(headers, table, align_right_from=2)

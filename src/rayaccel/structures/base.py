@@ -10,7 +10,7 @@ from .._jit import inline_kernel
 from .._validate import as_positive_int
 from ..geometry.sphere import sphere_hit_coords
 from ..ray_order import MIN_RAYS, coherent_batch
-from ..rays import AllHits, Camera, Hits, RayCounters, prepare_rays
+from ..rays import WORK_COLUMNS, AllHits, Camera, Hits, RayCounters, prepare_rays
 from ..scene import SPHERE, PrimitiveBounds, Spheres, TriangleMesh
 from .actions import NEAREST, hit_count, hit_list, intersect_references, is_closer, nearest_hit, store_hit
 from .grid.mailbox import MailboxPool
@@ -94,7 +94,7 @@ class Accelerator(PointQueries):
                                                coordinates=True)
         if self.scene.kind == SPHERE:
             sphere_hit_coords(self.scene.geometry, rays.origins, rays.directions, t, prim, u, v)
-        ray_counters = RayCounters(work[:, 0].copy(), work[:, 1].copy(), work[:, 2].copy()) if counters else None
+        ray_counters = RayCounters(*(work[:, k].copy() for k in range(WORK_COLUMNS))) if counters else None
         return Hits(t, prim, u, v, ray_counters, np.minimum(prim, 0))
 
     def occluded(self, origins, directions, t_min=0.0, t_max=np.inf, *, reorder=True) -> np.ndarray:
@@ -219,7 +219,7 @@ class Accelerator(PointQueries):
         prim = np.full(n, -1, dtype=np.int64)
         u = np.full(n, np.nan) if coordinates else np.empty(n)
         v = np.full(n, np.nan) if coordinates else np.empty(n)
-        work = np.zeros((n if counters else 0, 3), dtype=np.int64)
+        work = np.zeros((n if counters else 0, WORK_COLUMNS), dtype=np.int64)
         if n:
             self._trace(self._ordered(rays, reorder), any_hit, nearest_hit(t, prim, u, v), work)
         return rays, t, prim, u, v, work

@@ -141,6 +141,7 @@ def bvh_trace_kernel(bounds_kind, node_box, node_volume, node_links, prim_order,
         best_v = 0.0
         n_nodes = 0
         n_tests = 0
+        n_leaves = 0
         node = 0
         sp = 0
         root_entry = _enter(bounds_kind, node_box, node_volume, 0, ray, proj_o, proj_inv, near_faces, ray_t_min, best_t)
@@ -150,6 +151,7 @@ def bvh_trace_kernel(bounds_kind, node_box, node_volume, node_links, prim_order,
             n_nodes += 1
             count = node_links[node, 7]
             if count > 0:
+                n_leaves += 1
                 first = node_links[node, 6]
                 for k in range(first, first + count):
                     n_tests += 1
@@ -187,3 +189,4 @@ def bvh_trace_kernel(bounds_kind, node_box, node_volume, node_links, prim_order,
         if count_work:
             work[hit_slot[i], 0] = n_nodes
             work[hit_slot[i], 1] = n_tests
+            work[hit_slot[i], 3] = n_leaves

@@ -65,7 +65,7 @@ def wide_trace_kernel(root_box, records, links, prim_order, kind, geom, origins,
     ``links`` is ``records`` seen as int32, and row 0 of ``root_box`` (a binary node record)
     the whole tree's box, which a ray must enter before the root's four children are
     tested. Each primitive of a leaf gets the leaf action (:mod:`..actions`). Counters:
-    wide nodes visited, primitive tests."""
+    wide nodes and leaves visited (a leaf counts as a node too), primitive tests."""
     count_work = work.shape[0] > 0
     for i in prange(origins.shape[0]):
         ox, oy, oz = origins[i, 0], origins[i, 1], origins[i, 2]
@@ -85,6 +85,7 @@ def wide_trace_kernel(root_box, records, links, prim_order, kind, geom, origins,
         best_v = 0.0
         n_nodes = 0
         n_tests = 0
+        n_leaves = 0
         node = 0
         sp = 0
         if enter_box(root_box, 0, ox, oy, oz, ix, iy, iz, near_x, near_y, near_z, ray_t_min, best_t) == np.inf:
@@ -126,6 +127,8 @@ def wide_trace_kernel(root_box, records, links, prim_order, kind, geom, origins,
                 if count == 0:
                     node = stack_link[tid, sp]
                     break
+                n_nodes += 1
+                n_leaves += 1
                 first = stack_link[tid, sp]
                 for k in range(first, first + count):
                     n_tests += 1
@@ -140,3 +143,4 @@ def wide_trace_kernel(root_box, records, links, prim_order, kind, geom, origins,
         if count_work:
             work[hit_slot[i], 0] = n_nodes
             work[hit_slot[i], 1] = n_tests
+            work[hit_slot[i], 3] = n_leaves

@@ -50,6 +50,7 @@ import numba
 import numpy as np
 
 from ..._jit import set_threads, thread_count
+from ...rays import WORK_COLUMNS
 from ...scene import SPHERE, TRIANGLE, Spheres, TriangleMesh
 from .build_uniform import build_grid, grid_box
 from .traverse import grid_trace_kernel
@@ -113,7 +114,7 @@ class _Traversal:
         self.rays = (origins, directions, np.zeros(n), np.full(n, np.inf), np.arange(n, dtype=np.int64))
         self.mailbox = np.full((numba.config.NUMBA_NUM_THREADS, len(scene)), -1, dtype=np.int64)
         self.stamp = 0
-        work = self._run(np.zeros((n, 3), dtype=np.int64))
+        work = self._run(np.zeros((n, WORK_COLUMNS), dtype=np.int64))
         self.cells_per_ray = float(work[:, 0].mean())
         self.tests_per_ray = float(work[:, 1].mean())
 

@@ -113,3 +113,4 @@ def grid_trace_kernel(grid_lo, grid_hi, res, cell_size, cell_first, cell_prims, 
             work[hit_slot[i], 0] = n_cells
             work[hit_slot[i], 1] = n_tests
             work[hit_slot[i], 2] = n_skips
+            work[hit_slot[i], 3] = n_cells

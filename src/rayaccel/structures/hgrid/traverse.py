@@ -45,6 +45,7 @@ def hgrid_trace_kernel(lo, hi, grid_lo, grid_res, grid_cell_size, grid_cell_base
         best_u = 0.0
         best_v = 0.0
         n_cells = 0
+        n_leaves = 0
         n_tests = 0
         n_skips = 0
         level = 0
@@ -58,6 +59,7 @@ def hgrid_trace_kernel(lo, hi, grid_lo, grid_res, grid_cell_size, grid_cell_base
             cell = grid_cell_base[g] + cx + grid_res[g, 0] * (cy + grid_res[g, 1] * cz)
             cell_exit = min(next_x, next_y, next_z)
             child = cell_child[cell]
+            n_leaves += child < 0
             if child >= 0:
                 saved_int[tid, level, 0] = g
                 saved_int[tid, level, 1] = cx
@@ -124,3 +126,4 @@ def hgrid_trace_kernel(lo, hi, grid_lo, grid_res, grid_cell_size, grid_cell_base
             work[hit_slot[i], 0] = n_cells
             work[hit_slot[i], 1] = n_tests
             work[hit_slot[i], 2] = n_skips
+            work[hit_slot[i], 3] = n_leaves

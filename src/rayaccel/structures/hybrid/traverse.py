@@ -51,6 +51,7 @@ def grid_bvh_trace_kernel(lo, hi, res, cell_size, cell_first, cell_prims, cell_r
         n_tests = 0
         n_skips = 0
         n_steps = 0
+        n_leaves = 0
         t_cell = t_enter
         while True:
             n_steps += 1
@@ -62,6 +63,7 @@ def grid_bvh_trace_kernel(lo, hi, res, cell_size, cell_first, cell_prims, cell_r
             span_hi = cell_exit + EXIT_MARGIN * abs(cell_exit)
             root = cell_root[cell]
             if root < 0:
+                n_leaves += 1
                 best_t, best_prim, best_u, best_v, n_tests, n_skips = intersect_references(
                     action, hit_slot[i], cell_first[cell], cell_first[cell + 1], cell_prims, mailbox, tid, stamp, kind,
                     geom, ray, ray_t_min, best_t, best_prim, best_u, best_v, n_tests, n_skips, any_hit)
@@ -75,6 +77,7 @@ def grid_bvh_trace_kernel(lo, hi, res, cell_size, cell_first, cell_prims, cell_r
                     n_steps += 1
                     count = node_count[node]
                     if count > 0:
+                        n_leaves += 1
                         first = node_first[node]
                         best_t, best_prim, best_u, best_v, n_tests, n_skips = intersect_references(
                             action, hit_slot[i], first, first + count, cell_prims, mailbox, tid, stamp, kind, geom,
@@ -114,3 +117,4 @@ def grid_bvh_trace_kernel(lo, hi, res, cell_size, cell_first, cell_prims, cell_r
             work[hit_slot[i], 0] = n_steps
             work[hit_slot[i], 1] = n_tests
             work[hit_slot[i], 2] = n_skips
+            work[hit_slot[i], 3] = n_leaves

@@ -21,7 +21,7 @@ import time
 import numpy as np
 
 from ..._jit import thread_count
-from ...rays import AllHits, Hits, RayCounters, prepare_rays
+from ...rays import WORK_COLUMNS, AllHits, Hits, RayCounters, prepare_rays
 from ...stats import box_area, surface_area_stats
 from ..base import Accelerator
 from ..bvh.build_top_down import SAH_BINNED, build_top_down
@@ -112,7 +112,7 @@ class InstancedScene(Accelerator):
         best_v = np.full(n, np.nan)
         best_geom = np.full(n, -1, dtype=np.int64)
         limit = rays.t_max.copy()
-        work = np.zeros((n, 3), dtype=np.int64) if counters else None
+        work = np.zeros((n, WORK_COLUMNS), dtype=np.int64) if counters else None
         offsets, instance, entry, top_nodes = instance_candidates(self.top, self.top_depth, rays.origins,
                                                                   rays.directions, rays.t_min, rays.t_max)
         if counters:
@@ -132,7 +132,7 @@ class InstancedScene(Accelerator):
             self._trace_pairs(rays, ray_of_pair[pairs], instance[pairs], limit, any_hit, counters, reorder, work,
                               (best_t, best_prim, best_u, best_v, best_geom))
             wave_first = wave_end
-        ray_counters = RayCounters(work[:, 0].copy(), work[:, 1].copy(), work[:, 2].copy()) if counters else None
+        ray_counters = RayCounters(*(work[:, k].copy() for k in range(WORK_COLUMNS))) if counters else None
         return Hits(best_t, best_prim, best_u, best_v, ray_counters, best_geom)
 
     def _trace_pairs(self, rays, ray, instance, limit, any_hit, counters, reorder, work, best):

@@ -60,6 +60,7 @@ def kdtree_trace_kernel(lo, hi, node_split, node_link, leaf_prims, kind, geom, o
         best_u = 0.0
         best_v = 0.0
         n_nodes = 0
+        n_leaves = 0
         n_tests = 0
         node = 0
         sp = 0
@@ -96,6 +97,7 @@ def kdtree_trace_kernel(lo, hi, node_split, node_link, leaf_prims, kind, geom, o
                     node = near
                     t1 = t_plane
                 continue
+            n_leaves += 1
             first = node_link[node, 0]
             best_t, best_prim, best_u, best_v, n_tests, _ = intersect_references(
                 action, hit_slot[i], first, first + (word >> 2), leaf_prims, mailbox, tid, ray_id_base + i, kind, geom,
@@ -117,3 +119,4 @@ def kdtree_trace_kernel(lo, hi, node_split, node_link, leaf_prims, kind, geom, o
         if count_work:
             work[hit_slot[i], 0] = n_nodes
             work[hit_slot[i], 1] = n_tests
+            work[hit_slot[i], 3] = n_leaves

@@ -61,6 +61,7 @@ def octree_trace_kernel(lo, hi, node_center, node_link, leaf_prims, kind, geom, 
         best_u = 0.0
         best_v = 0.0
         n_nodes = 0
+        n_leaves = 0
         n_tests = 0
         node = 0
         sp = 0
@@ -110,6 +111,7 @@ def octree_trace_kernel(lo, hi, node_center, node_link, leaf_prims, kind, geom, 
                     stack_t[tid, sp, 1] = stop
                     sp += 1
             else:
+                n_leaves += 1
                 first = node_link[node, 0]
                 best_t, best_prim, best_u, best_v, n_tests, _ = intersect_references(
                     action, hit_slot[i], first, first + count, leaf_prims, mailbox, tid, ray_id_base + i, kind, geom,
@@ -127,3 +129,4 @@ def octree_trace_kernel(lo, hi, node_center, node_link, leaf_prims, kind, geom, 
         if count_work:
             work[hit_slot[i], 0] = n_nodes
             work[hit_slot[i], 1] = n_tests
+            work[hit_slot[i], 3] = n_leaves
