@@ -14,7 +14,7 @@ from ..rays import WORK_COLUMNS, AllHits, Camera, Hits, RayCounters, prepare_ray
 from ..scene import SPHERE, PrimitiveBounds, Spheres, TriangleMesh
 from .actions import NEAREST, hit_count, hit_list, intersect_references, is_closer, nearest_hit, store_hit
 from .grid.mailbox import MailboxPool
-from .point_queries import PointQueries
+from .point_queries import PointQueries, any_dask
 
 __all__ = ["Accelerator", "is_closer", "intersect_references", "store_hit", "settled_before", "EXIT_MARGIN"]
 
@@ -29,11 +29,6 @@ def settled_before(best_prim, best_t, t_exit):
     plane itself (a shared edge lying in a split plane) lets the walk enter the next
     cell too, where a primitive hit at the same ``t`` with a lower index may wait."""
     return best_prim >= 0 and best_t < t_exit - EXIT_MARGIN * abs(t_exit)
-
-
-def _any_dask(*values) -> bool:
-    """Whether any value is a Dask collection, decided without importing Dask."""
-    return any(type(value).__module__.split(".")[0] == "dask" for value in values)
 
 
 class Accelerator(PointQueries):
@@ -81,7 +76,7 @@ class Accelerator(PointQueries):
         Any input a ``dask.array`` makes every field of the result a lazy Dask array
         chunked as the rays (:func:`rayaccel.distributed.intersect`).
         """
-        if _any_dask(origins, directions, t_min, t_max):
+        if any_dask(origins, directions, t_min, t_max):
             from ..distributed import intersect
 
             return intersect(self, origins, directions, t_min, t_max, any_hit=any_hit, counters=counters,
@@ -100,7 +95,7 @@ class Accelerator(PointQueries):
     def occluded(self, origins, directions, t_min=0.0, t_max=np.inf, *, reorder=True) -> np.ndarray:
         """(n,) bool: whether anything lies on each ray within ``[t_min, t_max]``; a lazy Dask
         array when any input is one (:func:`rayaccel.distributed.occluded`)."""
-        if _any_dask(origins, directions, t_min, t_max):
+        if any_dask(origins, directions, t_min, t_max):
             from ..distributed import occluded
 
             return occluded(self, origins, directions, t_min, t_max, reorder=reorder)
@@ -120,7 +115,7 @@ class Accelerator(PointQueries):
         entry and its exit (a tangent ray twice). Inputs as for :meth:`intersect`;
         a lazy Dask array when any input is one (:func:`rayaccel.distributed.count`).
         """
-        if _any_dask(origins, directions, t_min, t_max):
+        if any_dask(origins, directions, t_min, t_max):
             from ..distributed import count
 
             return count(self, origins, directions, t_min, t_max, reorder=reorder)
@@ -140,7 +135,7 @@ class Accelerator(PointQueries):
         """
         if max_hits is not None:
             max_hits = as_positive_int("max_hits", max_hits)
-        if _any_dask(origins, directions, t_min, t_max):
+        if any_dask(origins, directions, t_min, t_max):
             from ..distributed import intersect_all
 
             return intersect_all(self, origins, directions, t_min, t_max, max_hits=max_hits, reorder=reorder)

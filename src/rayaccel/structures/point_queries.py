@@ -24,10 +24,11 @@ import numpy as np
 from ..points import ClosestPoints, check_accuracy, check_max_distance, prepare_points
 from .point_actions import empty_closest, finish_closest
 
-__all__ = ["PointQueries"]
+__all__ = ["PointQueries", "any_dask"]
 
 
-def _any_dask(*values) -> bool:
+def any_dask(*values) -> bool:
+    """Whether any value is a Dask collection, decided without importing Dask."""
     return any(type(value).__module__.split(".")[0] == "dask" for value in values)
 
 
@@ -51,7 +52,7 @@ class PointQueries:
             distance go to the lowest primitive index (see :class:`rayaccel.points.ClosestPoints`).
             Lazy Dask arrays when ``points`` is one (:func:`rayaccel.distributed.closest_point`).
         """
-        if _any_dask(points):
+        if any_dask(points):
             from ..distributed import closest_point
 
             return closest_point(self, points, max_distance)
@@ -60,7 +61,7 @@ class PointQueries:
     def distance(self, points) -> np.ndarray:
         """(n,) unsigned distance from each point to the nearest primitive's surface (for spheres:
         to the nearest sphere's surface, also from inside it)."""
-        if _any_dask(points):
+        if any_dask(points):
             from ..distributed import distance
 
             return distance(self, points)
@@ -76,7 +77,7 @@ class PointQueries:
         than ``accuracy`` times its radius (``accuracy = inf``: the exact sum; brute force
         always sums exactly). Spheres: how many spheres contain the point.
         """
-        if _any_dask(points):
+        if any_dask(points):
             from ..distributed import winding_number
 
             return winding_number(self, points, accuracy=accuracy)
@@ -85,7 +86,7 @@ class PointQueries:
     def contains(self, points, *, accuracy=2.0) -> np.ndarray:
         """(n,) bool: ``|winding_number| > 0.5`` -- inside the mesh (robust to holes, duplicated
         and flipped triangles), or inside any sphere."""
-        if _any_dask(points):
+        if any_dask(points):
             from ..distributed import contains
 
             return contains(self, points, accuracy=accuracy)
@@ -93,7 +94,7 @@ class PointQueries:
 
     def signed_distance(self, points, *, accuracy=2.0) -> np.ndarray:
         """(n,) :meth:`distance`, negative where :meth:`contains` holds."""
-        if _any_dask(points):
+        if any_dask(points):
             from ..distributed import signed_distance
 
             return signed_distance(self, points, accuracy=accuracy)
