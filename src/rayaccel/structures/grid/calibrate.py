@@ -52,6 +52,7 @@ import numpy as np
 from ..._jit import set_threads, thread_count
 from ...rays import WORK_COLUMNS
 from ...scene import SPHERE, TRIANGLE, Spheres, TriangleMesh
+from ..actions import nearest_hit
 from .build_uniform import build_grid, grid_box
 from .traverse import grid_trace_kernel
 
@@ -123,13 +124,14 @@ class _Traversal:
         g = self.grid
         grid_trace_kernel(g.lo, g.hi, g.res, g.cell_size, g.cell_first, g.cell_prims, self.scene.kind,
                           self.scene.geometry, *self.rays, False, self.mailbox, self.stamp,
-                          np.full(n, np.inf), np.full(n, -1, dtype=np.int64), np.zeros(n), np.zeros(n), work)
+                          nearest_hit(np.full(n, np.inf), np.full(n, -1, dtype=np.int64), np.zeros(n), np.zeros(n)),
+                          work)
         self.stamp += n
         return work
 
     def seconds_per_ray(self) -> float:
         start = time.perf_counter()
-        self._run(np.zeros((0, 3), dtype=np.int64))
+        self._run(np.zeros((0, WORK_COLUMNS), dtype=np.int64))
         return (time.perf_counter() - start) / len(self.rays[0])
 
 
