@@ -190,3 +190,21 @@ def test_forest_instanced_renders_like_its_flattened_copy(tmp_path):
     assert main(["--quiet", "stats", "forest-instanced", "--method", "bvh-lbvh"]) == 0
     assert main(["--quiet", "render", "forest-instanced", "--method", "grid", "--size", "16",
                  "--out", str(tmp_path / "f.png")]) == 0
+
+
+def test_rotated_sphere_instances_flatten_to_spheres():
+    angle = 0.7
+    rotation = np.eye(4)
+    rotation[:3, :3] = [[np.cos(angle), -np.sin(angle), 0.0], [np.sin(angle), np.cos(angle), 0.0], [0.0, 0.0, 1.0]]
+    rotation[:3, :3] *= 2.0
+    rotation[:3, 3] = [1.0, 2.0, 3.0]
+    scene = ra.Scene()
+    scene.add(ra.Spheres([[1.0, 0.0, 0.0]], [0.5]), transform=rotation)
+    flat = scene.flatten()
+    np.testing.assert_allclose(flat.radii, [1.0])
+    np.testing.assert_allclose(flat.centers, [[1.0 + 2.0 * np.cos(angle), 2.0 + 2.0 * np.sin(angle), 3.0]])
+    sheared = rotation.copy()
+    sheared[0, 1] += 0.5
+    scene.set_transform(0, sheared)
+    with pytest.raises(ValueError, match="ellipsoid"):
+        scene.flatten()

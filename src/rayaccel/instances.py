@@ -177,7 +177,7 @@ class Scene:
             obj, linear = self.objects[o], matrix[:3, :3]
             if obj.kind == SPHERE:
                 scale = abs(np.linalg.det(linear)) ** (1.0 / 3.0)
-                if not np.allclose(linear.T @ linear, scale * scale * np.eye(3), rtol=1e-12, atol=0):
+                if not np.allclose(linear.T @ linear, scale * scale * np.eye(3), rtol=0, atol=1e-12 * scale * scale):
                     raise ValueError("a sphere instance with non-uniform scale or shear is an ellipsoid")
                 parts.append((obj.centers @ linear.T + matrix[:3, 3], obj.radii * scale))
             else:
