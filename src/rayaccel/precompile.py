@@ -2,10 +2,11 @@
 
 Numba compiles a kernel on its first call, on one core, and caches it on disk
 (:mod:`rayaccel._jit`). The methods' kernels are independent of each other, so
-on an empty cache one process per core, each warming up a share of the methods
-(:func:`rayaccel.render.warm_up`: a build, a render with shadows and the queries'
-kernels on small scenes), fills the cache in about ``1 / cores`` of the time;
-the calling process then loads what they wrote. Worker processes are spawned,
+on an empty cache one process per core warms up a share of the methods
+(:func:`rayaccel.render.warm_up`: a build and a render with shadows on small
+scenes), and the calling process then loads what they wrote. The gain is not
+measured on an idle machine yet; on one loaded by other work (load 6-9), two
+workers took as long as one. Worker processes are spawned,
 not forked, since a forked copy of a process whose Numba threads are running
 may deadlock.
 

@@ -15,7 +15,7 @@ four-wide records, the sorted geometry) are rebuilt on load, so a file stays
 valid when a traversal layout changes. One derived array is stored as well,
 because deriving it is most of a load's time: the four-wide BVH's choice of
 binary nodes per wide node (:func:`..structures.bvh.wide.wide_tree`; full dragon:
-27 ms of random reads over the whole tree, against 3 ms to read and check it). It is
+27 ms of random reads over the whole tree). It is
 optional: a file without it gets it derived again.
 """
 
