@@ -116,7 +116,9 @@ def test_every_method_answers_every_query_as_brute_force(method, scenes, referen
         assert np.isinf(near.distance[near.prim < 0]).all() and np.isnan(near.point[near.prim < 0]).all()
         np.testing.assert_array_equal(accel.distance(points), ref.distance)
         winding = accel.winding_number(points)
-        assert np.abs(winding - ref_winding).max() < 0.2
+        off_surface = ref.distance > 1e-9
+        assert np.abs(winding - ref_winding)[off_surface].max() < 0.2
+        assert np.isfinite(winding).all()
         away = ref.distance > 0.02 * np.linalg.norm(scene.bounds().scene_hi - scene.bounds().scene_lo)
         inside = np.abs(ref_winding) > 0.5
         np.testing.assert_array_equal(accel.contains(points)[away], inside[away])
@@ -290,3 +292,93 @@ def test_dask_point_queries(closed_sphere_mesh):
     np.testing.assert_array_equal(cp.prim.compute(), ref.prim)
     for query in ("distance", "winding_number", "contains", "signed_distance"):
         np.testing.assert_array_equal(getattr(accel, query)(lazy).compute(), getattr(accel, query)(points))
+
+
+def _subdivided_cube():
+    """A closed cube of side 1 centred at the origin, each face split into 8 triangles around its
+    centre, counter-clockwise seen from outside."""
+    import trimesh
+
+    cube = trimesh.creation.box()
+    return ra.TriangleMesh(*trimesh.remesh.subdivide(cube.vertices, cube.faces))
+
+
+def test_caps_close_the_holes_and_nothing_else(bunny):
+    from rayaccel.geometry.caps import boundary_caps
+
+    def open_edges(vertices, faces):
+        points, same = np.unique(vertices, axis=0, return_inverse=True)
+        f = same.reshape(-1)[faces]
+        edges = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
+        edges = edges[edges[:, 0] != edges[:, 1]]
+        balance = {}
+        for a, b in edges.tolist():
+            key, sign = ((a, b), 1) if a < b else ((b, a), -1)
+            balance[key] = balance.get(key, 0) + sign
+        return {k: v for k, v in balance.items() if v}, points
+
+    cube = _subdivided_cube()
+    assert len(boundary_caps(cube.vertices, cube.faces)[1]) == 0
+    split = cube.geometry.reshape(-1, 3)
+    assert len(boundary_caps(split, np.arange(len(split)).reshape(-1, 3))[1]) == 0
+    for vertices, faces in [(bunny.vertices, bunny.faces), (cube.vertices, cube.faces[3:]),
+                            (cube.vertices, np.concatenate([cube.faces[2:], cube.faces[:1], cube.faces[5:9, ::-1]]))]:
+        cap_vertices, cap_faces = boundary_caps(vertices, faces)
+        assert len(cap_faces) == sum(abs(v) for v in open_edges(vertices, faces)[0].values())
+        closed = np.concatenate([np.asarray(vertices)[faces].reshape(-1, 3), cap_vertices[cap_faces].reshape(-1, 3)])
+        assert not open_edges(closed, np.arange(len(closed)).reshape(-1, 3))[0]
+    assert len(boundary_caps(bunny.vertices, bunny.faces)[1]) == 223
+
+
+@pytest.mark.parametrize("method", ["bvh-binned", "kdtree", "grid", "octree"])
+def test_winding_number_of_a_closed_mesh_is_exact_through_vertices_and_edges(method):
+    from rayaccel.structures.ray_winding import escape_directions
+
+    cube = _subdivided_cube()
+    accel = ra.build(cube, method)
+    corners = cube.geometry.reshape(-1, 3, 3)
+    targets = np.unique(np.concatenate([corners[:, 0], 0.5 * (corners[:, 0] + corners[:, 1])]), axis=0)
+    targets = targets[np.abs(targets).max(axis=1) == 0.5]
+    points = []
+    for target in targets:
+        axis = int(np.argmax(np.abs(target)))
+        if np.sum(np.abs(target) == 0.5) > 1:
+            continue
+        direction = np.array([3.0, 5.0, 7.0]) / 512.0
+        direction[axis] = np.sign(target[axis])
+        for step in (0.25, 0.5, 0.75):
+            point = target - step * direction
+            if np.array_equal(escape_directions(point[None], *accel.scene_box)[0], direction):
+                points.append(point)
+    points = np.array(points)
+    assert len(points) > 20
+    np.testing.assert_array_equal(accel.winding_number(points), np.ones(len(points)))
+    assert accel.contains(points).all()
+    outside = points * 1.5
+    np.testing.assert_array_equal(accel.winding_number(outside), np.where(np.abs(outside).max(axis=1) < 0.5, 1, 0))
+    on_face = np.array([[0.5, 0.125, -0.1875], [-0.25, 0.5, 0.0625], [0.3125, 0.0625, -0.5]])
+    np.testing.assert_array_equal(accel.winding_number(on_face), [0.5, 0.5, 0.5])
+
+
+@pytest.mark.parametrize("method", ["bvh-binned", "kdtree"])
+def test_winding_number_with_caps_matches_the_exact_sum(bunny, method):
+    accel = ra.build(bunny, method)
+    points = sample_points(bunny, 300, seed=11)
+    exact = exact_winding(bunny, points)
+    np.testing.assert_allclose(accel.winding_number(points, accuracy=np.inf), exact, atol=1e-9)
+    assert np.abs(accel.winding_number(points) - exact).max() < 0.05
+    np.testing.assert_array_equal(accel.contains(points), np.abs(exact) > 0.5)
+
+
+def test_winding_number_of_a_soup_and_after_a_refit(bunny):
+    rng = np.random.default_rng(4)
+    soup = ra.TriangleMesh(rng.normal(size=(300, 3)), np.arange(300).reshape(-1, 3))
+    points = rng.normal(size=(50, 3))
+    np.testing.assert_allclose(ra.build(soup, "bvh-binned").winding_number(points, accuracy=np.inf),
+                               exact_winding(soup, points), atol=1e-9)
+    accel = ra.build(bunny, "bvh-binned")
+    points = sample_points(bunny, 200, seed=12)
+    before = accel.winding_number(points)
+    shift = np.array([0.3, -0.2, 0.1])
+    accel.refit(bunny.vertices + shift)
+    np.testing.assert_allclose(accel.winding_number(points + shift), before, atol=1e-9)

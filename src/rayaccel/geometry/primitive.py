@@ -31,13 +31,14 @@ def intersect_prim(kind, geom, prim, ray, t_min, t_max):
 
 @inline_kernel
 def cross_prim(kind, geom, prim, ray, t_min, t_max):
-    """``(n, t_first, t_second, u, v)``: the ray's ``n`` crossings of primitive ``prim`` in
+    """``(n, t_first, t_second, u, v, side)``: the ray's ``n`` crossings of primitive ``prim`` in
     ``[t_min, t_max]``, nearest first (``inf`` where absent). A triangle is crossed at most
-    once, under the tie rule of :func:`.triangle.cross_triangle`, with barycentrics ``u, v``;
-    a sphere up to twice (:func:`.sphere.cross_sphere`), ``u = v = 0``."""
+    once, under the tie rule of :func:`.triangle.cross_triangle`, with barycentrics ``u, v``
+    and ``side`` +1 where the ray leaves through its front, -1 through its back; a sphere up
+    to twice (:func:`.sphere.cross_sphere`), ``u = v = 0``, ``side`` +1."""
     ox, oy, oz, dx, dy, dz, kx, ky, kz, sx, sy, sz = ray
     if kind == TRIANGLE:
-        t, u, v = cross_triangle(geom, prim, ox, oy, oz, kx, ky, kz, sx, sy, sz, t_min, t_max)
-        return (0 if t == np.inf else 1), t, np.inf, u, v
+        t, u, v, det = cross_triangle(geom, prim, ox, oy, oz, kx, ky, kz, sx, sy, sz, t_min, t_max)
+        return (0 if t == np.inf else 1), t, np.inf, u, v, (1 if det < 0.0 else -1)
     n, t_first, t_second = cross_sphere(geom, prim, ox, oy, oz, dx, dy, dz, t_min, t_max)
-    return n, t_first, t_second, 0.0, 0.0
+    return n, t_first, t_second, 0.0, 0.0, 1

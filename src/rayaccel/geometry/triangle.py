@@ -65,8 +65,9 @@ def _sheared_vertices(geom, prim, ox, oy, oz, kx, ky, kz, sx, sy):
 
 @inline_kernel
 def _hit_from_edges(e0, e1, e2, ax_, ay_, bx_, by_, cx_, cy_, az_, bz_, cz_, sz, t_min, t_max):
-    """``(t, u, v)`` of a ray inside the triangle's edges, or ``(inf, 0, 0)`` when the triangle
-    is degenerate or the hit lies outside ``[t_min, t_max]``."""
+    """``(t, u, v, det)`` of a ray inside the triangle's edges, or ``(inf, 0, 0, 0)`` when the
+    triangle is degenerate or the hit lies outside ``[t_min, t_max]``; ``det < 0`` where the ray
+    leaves through the triangle's front (the side its counter-clockwise normal points to)."""
     det = e0 + e1 + e2
     # A triangle that is degenerate (collinear vertices) has det = 0 exactly, but its rounded
     # edge functions can leave a tiny det of either sign and a meaningless t; any det within
@@ -74,11 +75,11 @@ def _hit_from_edges(e0, e1, e2, ax_, ay_, bx_, by_, cx_, cy_, az_, bz_, cz_, sz,
     size = (abs(cx_ * by_) + abs(cy_ * bx_) + abs(ax_ * cy_) + abs(ay_ * cx_) + abs(bx_ * ay_)
             + abs(by_ * ax_))
     if abs(det) <= _DEGENERATE * size:
-        return np.inf, 0.0, 0.0
+        return np.inf, 0.0, 0.0, 0.0
     t = sz * (e0 * az_ + e1 * bz_ + e2 * cz_) / det
     if t >= t_min and t <= t_max:
-        return t, e1 / det, e2 / det
-    return np.inf, 0.0, 0.0
+        return t, e1 / det, e2 / det, det
+    return np.inf, 0.0, 0.0, 0.0
 
 
 @inline_kernel
@@ -106,13 +107,13 @@ def _triangle_hit(geom, prim, ox, oy, oz, kx, ky, kz, sx, sy, sz, t_min, t_max, 
     e1 = ax_ * cy_ - ay_ * cx_
     e2 = bx_ * ay_ - by_ * ax_
     if (e0 < 0.0 or e1 < 0.0 or e2 < 0.0) and (e0 > 0.0 or e1 > 0.0 or e2 > 0.0):
-        return np.inf, 0.0, 0.0
+        return np.inf, 0.0, 0.0, 0.0
     if one_owner and (e0 == 0.0 or e1 == 0.0 or e2 == 0.0):
         s0 = _edge_sign(e0, cx_, cy_, bx_, by_)
         s1 = _edge_sign(e1, ax_, ay_, cx_, cy_)
         s2 = _edge_sign(e2, bx_, by_, ax_, ay_)
         if s0 != s1 or s1 != s2:
-            return np.inf, 0.0, 0.0
+            return np.inf, 0.0, 0.0, 0.0
     return _hit_from_edges(e0, e1, e2, ax_, ay_, bx_, by_, cx_, cy_, az_, bz_, cz_, sz, t_min, t_max)
 
 
@@ -126,7 +127,8 @@ def intersect_triangle(geom, prim, ox, oy, oz, kx, ky, kz, sx, sy, sz, t_min, t_
     an edge or vertex hits every triangle there (see :func:`cross_triangle` for
     the test that gives each crossing to one triangle).
     """
-    return _triangle_hit(geom, prim, ox, oy, oz, kx, ky, kz, sx, sy, sz, t_min, t_max, False)
+    t, u, v, _ = _triangle_hit(geom, prim, ox, oy, oz, kx, ky, kz, sx, sy, sz, t_min, t_max, False)
+    return t, u, v
 
 
 @inline_kernel

@@ -9,6 +9,10 @@ predicted):
 - ``NEAREST`` keeps the closest hit (equal distances to the lower primitive
   index), or stops at the first one for any-hit queries;
 - ``COUNT`` counts every crossing in ``[t_min, t_max]``;
+- ``WINDING`` sums the crossings signed by the side the ray leaves through (+1
+  out of a triangle's front, -1 out of its back), in half units: 2 per crossing,
+  1 for a crossing at ``t = 0`` exactly (a ray starting on the surface), so that
+  the sum is twice the winding number about the ray's origin of a closed mesh;
 - ``LIST`` writes every crossing into the ray's slots of flat arrays, kept
   sorted by ``(t, prim)``; once the slots are full it keeps the nearest and
   lowers the walk's search bound to the farthest kept, as a closest-hit walk
@@ -39,21 +43,23 @@ import numpy as np
 from .._jit import inline_kernel, kernel
 from ..geometry.primitive import cross_prim, intersect_prim
 
-__all__ = ["NEAREST", "COUNT", "LIST", "Action", "nearest_hit", "hit_count", "hit_list", "is_closer", "store_hit",
-           "visit_prim", "finish_ray", "intersect_references"]
+__all__ = ["NEAREST", "COUNT", "LIST", "WINDING", "Action", "nearest_hit", "hit_count", "hit_list", "signed_crossings",
+           "is_closer", "store_hit", "visit_prim", "finish_ray", "intersect_references"]
 
 NEAREST = 0
 COUNT = 1
 LIST = 2
+WINDING = 3
 
 
 class Action(NamedTuple):
     """What a walk does with the primitives it meets, and where it writes (per output row ``r``).
 
-    ``mode``: NEAREST, COUNT or LIST. NEAREST: ``t``, ``prim``, ``u``, ``v`` (n,), the best
-    hit of row ``r`` (rows start as misses). COUNT: ``count`` (n,) int64, crossings of row
-    ``r`` (starting at 0). LIST: row ``r`` fills ``t, prim, u, v[offsets[r]:offsets[r + 1]]``,
-    ``count[r]`` (starting at 0) of them so far. Arrays a mode does not use are empty.
+    ``mode``: NEAREST, COUNT, LIST or WINDING. NEAREST: ``t``, ``prim``, ``u``, ``v`` (n,), the
+    best hit of row ``r`` (rows start as misses). COUNT: ``count`` (n,) int64, crossings of row
+    ``r`` (starting at 0); WINDING: signed crossings there, in half units. LIST: row ``r``
+    fills ``t, prim, u, v[offsets[r]:offsets[r + 1]]``, ``count[r]`` (starting at 0) of them
+    so far. Arrays a mode does not use are empty.
     """
 
     mode: int
@@ -77,6 +83,12 @@ def nearest_hit(t, prim, u, v) -> Action:
 def hit_count(count) -> Action:
     """The counting action adding each row's crossings into ``count`` (n,) int64 zeros."""
     return Action(COUNT, _NO_FLOATS, _NO_INTS, _NO_FLOATS, _NO_FLOATS, count, _NO_INTS)
+
+
+def signed_crossings(count) -> Action:
+    """The action adding each row's signed crossings, in half units, into ``count`` (n,) int64
+    zeros."""
+    return Action(WINDING, _NO_FLOATS, _NO_INTS, _NO_FLOATS, _NO_FLOATS, count, _NO_INTS)
 
 
 def hit_list(offsets, fill, t, prim, u, v) -> Action:
@@ -155,11 +167,14 @@ def visit_prim(action, row, kind, geom, k, prim, ray, t_min, best_t, best_prim, 
         if is_closer(t, prim, best_t, best_prim):
             return t, prim, u, v, any_hit
         return best_t, best_prim, best_u, best_v, False
-    n, t_first, t_second, u, v = cross_prim(kind, geom, k, ray, t_min, best_t)
+    n, t_first, t_second, u, v, side = cross_prim(kind, geom, k, ray, t_min, best_t)
     if n == 0:
         return best_t, best_prim, best_u, best_v, False
     if action.mode == COUNT:
         _add_crossings(action, row, n)
+        return best_t, best_prim, best_u, best_v, False
+    if action.mode == WINDING:
+        _add_crossings(action, row, side if t_first == 0.0 else 2 * side)
         return best_t, best_prim, best_u, best_v, False
     full = _insert(action, row, t_first, prim, u, v)
     if n == 2:

@@ -2,12 +2,17 @@
 signed distance (:class:`PointQueries`, a base of :class:`rayaccel.structures.base.Accelerator`).
 
 Each structure supplies one walk by distance, :meth:`PointQueries._nearest`
-(its ``nearest.py``); the winding number is evaluated on a BVH that partitions
-the primitives (:mod:`rayaccel.structures.bvh.fast_winding`): a BVH method's
-own tree, or, for the structures that reference a primitive from several
-cells (grids, kd-tree, octree, hybrid), a binned-SAH BVH built over the scene
-on the first winding query and cached on the accelerator (``_winding_cache``;
-not saved with it). Brute force (``none``) sums the exact solid angles.
+(its ``nearest.py``). The winding number of a triangle mesh comes from one
+ray per point (:mod:`.ray_winding`): the signed crossings counted by the
+structure's own ray walk, plus, where the mesh has holes, the crossings and
+the fast winding number (:mod:`rayaccel.structures.bvh.fast_winding`) of the
+small caps that close them. The fast winding number reads a BVH that
+partitions the primitives: a BVH method's own tree, or, for the structures
+that reference a primitive from several cells (grids, kd-tree, octree,
+hybrid), a binned-SAH BVH built on first use and cached on the accelerator
+(``_winding_cache``; not saved with it); it alone answers for spheres and for
+triangle soups whose caps would be large. Brute force (``none``) sums the
+exact solid angles.
 
 Sign convention: the winding number is +1 inside a closed mesh whose
 triangles are counter-clockwise seen from outside, -1 inside an inverted one.
@@ -21,8 +26,10 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from ..geometry.kinds import TRIANGLE
 from ..points import ClosestPoints, check_accuracy, check_max_distance, prepare_points
 from .point_actions import empty_closest, finish_closest
+from .ray_winding import ray_winding_number
 
 __all__ = ["PointQueries", "any_dask"]
 
@@ -72,10 +79,14 @@ class PointQueries:
     def winding_number(self, points, *, accuracy=2.0) -> np.ndarray:
         """(n,) generalized winding number at each point (Jacobson et al. 2013).
 
-        Triangles: the sum of the signed solid angles over 4 pi, evaluated with the fast
-        winding number's dipole expansion (Barill et al. 2018) where a BVH node is farther
-        than ``accuracy`` times its radius (``accuracy = inf``: the exact sum; brute force
-        always sums exactly). Spheres: how many spheres contain the point.
+        Triangles: the sum of the signed solid angles over 4 pi. Off the surface of a closed
+        mesh it is an integer, counted exactly from one ray per point; a mesh with holes adds
+        the winding number of caps over them, evaluated with the fast winding number's dipole
+        expansion (Barill et al. 2018) where a BVH node is farther than ``accuracy`` times its
+        radius (``accuracy = inf``: the exact sum; brute force always sums exactly); see
+        :mod:`rayaccel.structures.ray_winding`. On the surface itself the winding number jumps;
+        the value there is that of one side, or 1/2 for a point exactly on a triangle.
+        Spheres: how many spheres contain the point.
         """
         if any_dask(points):
             from ..distributed import winding_number
@@ -128,7 +139,14 @@ class PointQueries:
         raise NotImplementedError(f"{self.method!r} has no walk by distance")
 
     def _winding_number(self, points, accuracy) -> np.ndarray:
-        """:meth:`winding_number` on validated points (brute force and scenes override it)."""
+        """:meth:`winding_number` on validated points (brute force and scenes override it): one ray
+        per point on triangles (:mod:`.ray_winding`), the fast winding number on spheres."""
+        if self.scene.kind == TRIANGLE:
+            return ray_winding_number(self, points, accuracy)
+        return self._fast_winding(points, accuracy)
+
+    def _fast_winding(self, points, accuracy) -> np.ndarray:
+        """The fast winding number (Barill et al. 2018) of the primitives at validated points."""
         from .bvh.fast_winding import fast_winding_kernel
 
         out = np.zeros(len(points))

@@ -115,6 +115,7 @@ class BoundingVolumeHierarchy(Accelerator):
         packs only its boxes."""
         self.pad = pad
         self._winding_cache = None
+        self._caps_cache = None
         bounds = self.options["bounds"]
         wide = bounds == "aabb" and self.options["width"] == 4
         records = pack_nodes(box[:1], first[:1], count[:1]) if wide else pack_nodes(box, first, count)
