@@ -47,10 +47,13 @@ _TILT = np.array([3.0, 5.0, 7.0]) / 512.0
 def escape_directions(points: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
     """(n, 3) directions from each point towards the nearest side of the box ``[lo, hi]`` (away from
     the box for points outside it), slightly tilted off the axis."""
-    gaps = np.concatenate([points - lo, hi - points], axis=1)
-    side = np.argmin(gaps, axis=1)
-    directions = np.broadcast_to(_TILT, points.shape).copy()
-    directions[np.arange(len(points)), side % 3] = np.where(side < 3, -1.0, 1.0)
+    below, above = points - lo, hi - points
+    upwards = above < below
+    np.minimum(below, above, out=below)
+    rows, axis = np.arange(len(points)), np.argmin(below, axis=1)
+    directions = np.empty_like(points)
+    directions[:] = _TILT
+    directions[rows, axis] = np.where(upwards[rows, axis], 1.0, -1.0)
     return directions
 
 

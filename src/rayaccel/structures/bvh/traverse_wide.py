@@ -27,7 +27,7 @@ from numba import prange
 
 from ..._jit import inline_kernel, parallel_kernel, prefetch, thread_id
 from ...geometry.primitive import ray_setup
-from ..actions import finish_ray, visit_prim
+from ..actions import NEAREST, finish_ray, visit_prim
 from .traverse import enter_box
 from .wide_slab import enter_children
 
@@ -67,6 +67,7 @@ def wide_trace_kernel(root_box, records, links, prim_order, kind, geom, origins,
     tested. Each primitive of a leaf gets the leaf action (:mod:`..actions`). Counters:
     wide nodes and leaves visited (a leaf counts as a node too), primitive tests."""
     count_work = work.shape[0] > 0
+    nearest_first = not any_hit and action.mode == NEAREST
     for i in prange(origins.shape[0]):
         ox, oy, oz = origins[i, 0], origins[i, 1], origins[i, 2]
         dx, dy, dz = directions[i, 0], directions[i, 1], directions[i, 2]
@@ -104,7 +105,7 @@ def wide_trace_kernel(root_box, records, links, prim_order, kind, geom, origins,
                 else:
                     t0, l0, c0, t3, l3, c3 = t3, l3, c3, t0, l0, c0
             if entered > 1:
-                if not any_hit:
+                if nearest_first:
                     t0, l0, c0, t1, l1, c1 = _in_order(t0, l0, c0, t1, l1, c1)
                     t2, l2, c2, t3, l3, c3 = _in_order(t2, l2, c2, t3, l3, c3)
                     t0, l0, c0, t2, l2, c2 = _in_order(t0, l0, c0, t2, l2, c2)
