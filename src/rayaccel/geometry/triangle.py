@@ -148,5 +148,7 @@ def cross_triangle(geom, prim, ox, oy, oz, kx, ky, kz, sx, sy, sz, t_min, t_max)
     mesh is therefore crossed an odd number of times from inside and an even
     number from outside, whatever the mesh's orientation. Both triangles of a
     shared edge compute the same sheared vertices bit for bit, so they decide alike.
+    Returns ``(t, u, v, det)``: ``det < 0`` where the ray leaves through the triangle's
+    front, so that the crossings signed by it sum to the winding number.
     """
     return _triangle_hit(geom, prim, ox, oy, oz, kx, ky, kz, sx, sy, sz, t_min, t_max, True)
