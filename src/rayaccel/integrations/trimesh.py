@@ -203,9 +203,9 @@ class RayMeshIntersector:
         float32 rays and, after each hit, casts again from the hit moved along the ray by
         ``max(1e-8, 1e-6 * mesh.scale)``, so that it misses a surface closer than that behind a
         hit; a crossing of a shared edge or vertex can come back once per triangle there; the
-        offset doubles while the same triangle comes back (a guard against looping where
-        float32 cannot step past a hit on large coordinates); and its hits are grouped by
-        depth (all first hits, then all second hits). Its ``max_hits`` bounds those
+        offset doubles while the same triangle comes back (its guard against a ray stuck on
+        a triangle that float32 cannot step past); and its hits are grouped by depth (all
+        first hits, then all second hits). Its ``max_hits`` bounds those
         re-casts; here it keeps each ray's ``max_hits`` nearest hits.
         """
         origins, directions = _rays(ray_origins, ray_directions)
