@@ -15,7 +15,8 @@ one after the other, counts once, but not reliably otherwise (the two distances 
 two triangles, and Embree's watertight test reports both); and duplicated triangles (two primitives
 at the same distance) count once. rayaccel reports every primitive crossed once, gives each crossing
 of a shared edge or vertex to exactly one triangle, and keeps duplicates (both). ``list_intersections``
-does a counting pass first, then a listing pass, as rayaccel's ``intersect_all`` does; its hits are
+does a counting pass first, then a listing pass (rayaccel's ``intersect_all`` lists in one walk the rays
+whose hits fit its first slots, see ``Accelerator._nearest_hits``); its hits are
 grouped per ray in the order Embree met them (not sorted by distance), rayaccel's are sorted by
 ``(t, prim)``. The "agree" column is the share of rays whose counts are equal.
 

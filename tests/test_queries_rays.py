@@ -238,6 +238,21 @@ def test_max_hits_keeps_the_nearest(method, scenes, references):
     assert as_lists(limited) == expected
 
 
+@pytest.mark.parametrize("slots", [(), (1,), (1, 2), (2, 3, 5)])
+def test_listing_walks_of_any_slot_sizes_find_the_same_hits(slots, scenes, references, monkeypatch):
+    import rayaccel.structures.base as base
+
+    monkeypatch.setattr(base, "LIST_SLOTS", slots)
+    monkeypatch.setattr(base, "LIST_BATCH", 97)
+    for name in ("dragon", "spheres"):
+        o, d, reference, counts = references[name]
+        for method in ("none", "bvh-binned"):
+            accel = ra.build(scenes[name], method)
+            assert_same_lists(reference, accel.intersect_all(o, d))
+            limited = accel.intersect_all(o, d, max_hits=2)
+            assert as_lists(limited) == [hits[:2] for hits in as_lists(reference)]
+
+
 def test_intervals_are_closed_per_ray_and_may_be_empty(small_dragon, references):
     o, d, reference, counts = references["dragon"]
     accel = ra.build(small_dragon, "bvh-binned")
