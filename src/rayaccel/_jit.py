@@ -1,8 +1,12 @@
 """The one Numba policy of rayaccel.
 
-Every kernel is compiled through :func:`kernel` (serial, inlined into callers
-where small) or :func:`parallel_kernel` (``prange`` over rays), both cached on
-disk so that only the first run on a machine pays for compilation.
+Every kernel is compiled through :func:`kernel` (serial), :func:`inline_kernel`
+(inlined into callers at Numba's IR level) or :func:`parallel_kernel`
+(``prange`` over rays), all cached on disk so that only the first run on a
+machine pays for compilation. The cache is Numba's, stamped with the sources of
+the kernel's file and of every package module that file imports
+(:mod:`rayaccel._cache_key`): editing a callee in another file recompiles its
+callers.
 
 Numerics
 --------
@@ -31,19 +35,30 @@ import numpy as np
 from llvmlite import ir
 from numba import types
 from numba.core import cgutils
+from numba.core.dispatcher import Dispatcher
 from numba.extending import intrinsic
+
+from ._cache_key import KernelCache
 
 __all__ = ["kernel", "inline_kernel", "parallel_kernel", "set_threads", "thread_count", "max_threads", "thread_id",
            "prefetch", "unsigned"]
 
-_COMMON = dict(cache=True, nogil=True, error_model="numpy", fastmath=False)
+_COMMON = dict(nogil=True, error_model="numpy", fastmath=False)
 
 unsigned = np.uint64
 
 
+def _cached(dispatcher):
+    """Cache ``dispatcher`` on disk under a stamp of its file and every file it imports
+    (:mod:`rayaccel._cache_key`), so that an edited callee in another file recompiles it."""
+    if isinstance(dispatcher, Dispatcher):
+        dispatcher._cache = KernelCache(dispatcher.py_func)
+    return dispatcher
+
+
 def kernel(func):
     """Compile ``func`` as a serial, cached, GIL-free Numba kernel."""
-    return numba.njit(**_COMMON)(func)
+    return _cached(numba.njit(**_COMMON)(func))
 
 
 def inline_kernel(func):
@@ -54,12 +69,12 @@ def inline_kernel(func):
     call that passes tuples through memory at every node costs more than the
     test itself (measured: 2-3x the BVH traversal time).
     """
-    return numba.njit(inline="always", **_COMMON)(func)
+    return _cached(numba.njit(inline="always", **_COMMON)(func))
 
 
 def parallel_kernel(func):
     """Compile ``func`` as a cached kernel whose ``prange`` loops run on all threads."""
-    return numba.njit(parallel=True, **_COMMON)(func)
+    return _cached(numba.njit(parallel=True, **_COMMON)(func))
 
 
 def set_threads(n: int) -> None:
