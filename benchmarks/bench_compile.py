@@ -24,7 +24,7 @@ their cost shows up in the caller's row. The signatures column counts the type
 specialisations compiled per kernel.
 
     python benchmarks/bench_compile.py [--method bvh-binned] [--rays 1000] [--repeat 1] [--warm]
-                                       [--src src] [--top 25] [--json out.json]
+                                       [--until build] [--src src] [--top 25] [--json out.json]
 """
 
 from __future__ import annotations
@@ -49,7 +49,7 @@ def _name(event) -> str:
     return f"{function.__module__}.{function.__qualname__}".removeprefix("rayaccel.")
 
 
-def _child(method: str, n_rays: int) -> dict:
+def _child(method: str, n_rays: int, until: str) -> dict:
     """The measured steps, in this (fresh) process; returns the figures as a dict."""
     import numba.core.event as ev
 
@@ -92,16 +92,21 @@ def _child(method: str, n_rays: int) -> dict:
     toward = rng.normal(size=(n_rays, 3))
     origins = centre + radius * toward / np.linalg.norm(toward, axis=1, keepdims=True)
     directions = rng.uniform(lo, hi, size=(n_rays, 3)) - origins
-    hits = timed("intersect", lambda: accel.intersect(origins, directions))
-    timed("occluded", lambda: accel.occluded(origins, directions))
-    return {"steps": steps, "kernels": kernels, "hit_fraction": float(np.isfinite(hits.t).mean())}
+    hits = None
+    if until != "build":
+        hits = timed("intersect", lambda: accel.intersect(origins, directions))
+        timed("occluded", lambda: accel.occluded(origins, directions))
+    for step in STEPS:
+        steps.setdefault(step, {"wall": 0.0, "cpu": 0.0})
+    return {"steps": steps, "kernels": kernels, "hit_fraction": float(np.isfinite(hits.t).mean()) if hits else 0.0}
 
 
-def _measure(src: Path, method: str, n_rays: int, cache: str) -> dict:
+def _measure(src: Path, method: str, n_rays: int, until: str, cache: str) -> dict:
     """One child process on the Numba cache folder ``cache``; its figures and the load averages."""
     env = dict(os.environ, NUMBA_CACHE_DIR=cache, PYTHONPATH=str(src))
     load_before = os.getloadavg()[0]
-    run = subprocess.run([sys.executable, __file__, "--child", "--method", method, "--rays", str(n_rays)],
+    run = subprocess.run([sys.executable, __file__, "--child", "--method", method, "--rays", str(n_rays),
+                          "--until", until],
                          env=env, capture_output=True, text=True, check=False)
     if run.returncode != 0:
         raise SystemExit(f"the measuring process failed:\n{run.stderr}")
@@ -119,10 +124,12 @@ def main() -> None:
     parser.add_argument("--src", type=Path, default=ROOT / "src", help="the folder holding the rayaccel package")
     parser.add_argument("--top", type=int, default=25, help="kernels listed, dearest first")
     parser.add_argument("--json", type=Path, help="also write every figure here")
+    parser.add_argument("--until", choices=["build", "occluded"], default="occluded",
+                        help="stop after this step (build: skip the queries, to iterate on the builders)")
     parser.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.child:
-        print(json.dumps(_child(args.method, args.rays)))
+        print(json.dumps(_child(args.method, args.rays, args.until)))
         return
 
     from rich.console import Console
@@ -135,10 +142,10 @@ def main() -> None:
     for k in range(args.repeat):
         with tempfile.TemporaryDirectory(prefix="rayaccel-numba-") as cache:
             with console.status(f"empty cache, run {k + 1} of {args.repeat} ..."):
-                cold.append(_measure(src, args.method, args.rays, cache))
+                cold.append(_measure(src, args.method, args.rays, args.until, cache))
             if args.warm and k == args.repeat - 1:
                 with console.status("warm cache ..."):
-                    warm = _measure(src, args.method, args.rays, cache)
+                    warm = _measure(src, args.method, args.rays, args.until, cache)
 
     table = Table(title=f"first use, seconds (median of {len(cold)} empty-cache run(s))")
     table.add_column("step")

@@ -30,6 +30,8 @@ floats in Numba.
 
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
+
 import numba
 import numpy as np
 from llvmlite import ir
@@ -40,8 +42,8 @@ from numba.extending import intrinsic
 
 from ._cache_key import KernelCache
 
-__all__ = ["kernel", "inline_kernel", "parallel_kernel", "set_threads", "thread_count", "max_threads", "thread_id",
-           "prefetch", "unsigned"]
+__all__ = ["kernel", "inline_kernel", "parallel_kernel", "on_threads", "set_threads", "thread_count", "max_threads",
+           "thread_id", "prefetch", "unsigned"]
 
 _COMMON = dict(nogil=True, error_model="numpy", fastmath=False)
 
@@ -75,6 +77,23 @@ def inline_kernel(func):
 def parallel_kernel(func):
     """Compile ``func`` as a cached kernel whose ``prange`` loops run on all threads."""
     return _cached(numba.njit(parallel=True, **_COMMON)(func))
+
+
+def on_threads(run, n: int, min_chunk: int = 16384) -> None:
+    """``run(first, end, c)`` for chunks ``c = 0, 1, ...`` of ``n`` items, one chunk per thread
+    and at least ``min_chunk`` items per chunk, each chunk on a Python thread of its own.
+
+    For a pass whose serial kernel releases the GIL (every kernel here does): as fast as a
+    ``prange`` loop over the chunks, without compiling a parallel kernel, which costs several
+    times a serial one on first use (a parallel pass over primitive boxes 3.6 s, its serial
+    kernel 0.4 s, measured on an empty cache).
+    """
+    n_chunks = max(1, min(thread_count(), n // min_chunk))
+    if n_chunks == 1:
+        run(0, n, 0)
+        return
+    with ThreadPoolExecutor(n_chunks) as pool:
+        list(pool.map(lambda c: run(c * n // n_chunks, (c + 1) * n // n_chunks, c), range(n_chunks)))
 
 
 def set_threads(n: int) -> None:

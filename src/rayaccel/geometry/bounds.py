@@ -11,17 +11,12 @@ kind's pass, not a ``prange`` kernel with both kinds in it.
 
 from __future__ import annotations
 
-from concurrent.futures import ThreadPoolExecutor
-
 import numpy as np
 
-from .._jit import inline_kernel, kernel, thread_count
+from .._jit import inline_kernel, kernel, on_threads, thread_count
 from .kinds import SPHERE, TRIANGLE
 
 __all__ = ["primitive_extent", "primitive_bounds", "triangle_centroids", "sphere_centroids"]
-
-# Below this many primitives per thread, one thread does it all.
-_MIN_CHUNK = 16384
 
 
 @inline_kernel
@@ -66,34 +61,24 @@ def _triangle_centroids(geometry, first, end, centroid):
             centroid[p, k] = (geometry[p, k] + geometry[p, 3 + k] + geometry[p, 6 + k]) / 3.0
 
 
-def _on_threads(run, n: int) -> None:
-    """``run(c, first, end)`` for the chunks ``c`` of ``n`` items, one chunk per thread."""
-    n_chunks = max(1, min(thread_count(), n // _MIN_CHUNK))
-    if n_chunks == 1:
-        run(0, 0, n)
-        return
-    with ThreadPoolExecutor(n_chunks) as pool:
-        list(pool.map(lambda c: run(c, c * n // n_chunks, (c + 1) * n // n_chunks), range(n_chunks)))
-
-
 def primitive_bounds(kind: int, geometry: np.ndarray):
     """``(lo, hi, scene_lo, scene_hi)``: the boxes (n, 3) of the primitives, triangles stored as
     rows of 9 floats or spheres as rows ``x, y, z, r``, and the box (3,) around them all."""
     n = geometry.shape[0]
     lo = np.empty((n, 3))
     hi = np.empty((n, 3))
-    chunk_box = np.empty((max(thread_count(), 1), 6))
+    chunk_box = np.empty((max(thread_count(), 1), 6))  # on_threads makes at most one chunk per thread
     chunk_box[:, :3] = np.inf
     chunk_box[:, 3:] = -np.inf
     boxes = _sphere_boxes if kind == SPHERE else _triangle_boxes
-    _on_threads(lambda c, first, end: boxes(geometry, first, end, lo, hi, chunk_box[c]), n)
+    on_threads(lambda first, end, c: boxes(geometry, first, end, lo, hi, chunk_box[c]), n)
     return lo, hi, chunk_box[:, :3].min(axis=0), chunk_box[:, 3:].max(axis=0)
 
 
 def triangle_centroids(geometry: np.ndarray) -> np.ndarray:
     """(n, 3) vertex means of triangles stored as rows of 9 floats."""
     centroid = np.empty((geometry.shape[0], 3))
-    _on_threads(lambda c, first, end: _triangle_centroids(geometry, first, end, centroid), geometry.shape[0])
+    on_threads(lambda first, end, c: _triangle_centroids(geometry, first, end, centroid), geometry.shape[0])
     return centroid
 
 
