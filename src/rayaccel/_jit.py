@@ -30,6 +30,7 @@ floats in Numba.
 
 from __future__ import annotations
 
+import os
 from concurrent.futures import ThreadPoolExecutor
 
 import numba
@@ -79,9 +80,23 @@ def parallel_kernel(func):
     return _cached(numba.njit(parallel=True, **_COMMON)(func))
 
 
-def on_threads(run, n: int, min_chunk: int = 16384) -> None:
-    """``run(first, end, c)`` for chunks ``c = 0, 1, ...`` of ``n`` items, one chunk per thread
-    and at least ``min_chunk`` items per chunk, each chunk on a Python thread of its own.
+_pool = {}
+
+
+def _thread_pool() -> ThreadPoolExecutor:
+    """One pool of ``max_threads()`` Python threads per process, made on first use (a forked
+    child gets its own: the parent's threads do not exist in it)."""
+    pid = os.getpid()
+    if pid not in _pool:
+        _pool.clear()
+        _pool[pid] = ThreadPoolExecutor(max_threads(), thread_name_prefix="rayaccel")
+    return _pool[pid]
+
+
+def on_threads(run, n: int, min_chunk: int = 16384) -> list:
+    """``[run(first, end, c) for each chunk c]`` over chunks ``c = 0, 1, ...`` of ``n`` items,
+    one chunk per thread (``thread_count()``) and at least ``min_chunk`` items per chunk, the
+    chunks run side by side on the threads of a pool kept for the process.
 
     For a pass whose serial kernel releases the GIL (every kernel here does): as fast as a
     ``prange`` loop over the chunks, without compiling a parallel kernel, which costs several
@@ -90,10 +105,8 @@ def on_threads(run, n: int, min_chunk: int = 16384) -> None:
     """
     n_chunks = max(1, min(thread_count(), n // min_chunk))
     if n_chunks == 1:
-        run(0, n, 0)
-        return
-    with ThreadPoolExecutor(n_chunks) as pool:
-        list(pool.map(lambda c: run(c * n // n_chunks, (c + 1) * n // n_chunks, c), range(n_chunks)))
+        return [run(0, n, 0)]
+    return list(_thread_pool().map(lambda c: run(c * n // n_chunks, (c + 1) * n // n_chunks, c), range(n_chunks)))
 
 
 def set_threads(n: int) -> None:
