@@ -13,7 +13,6 @@ bench:
 	python3 benchmarks/bench_structures.py
 	python3 benchmarks/bench_lecture.py
 
-# Numba's cache does not notice edits to a kernel's callees in other files:
-# clear it after changing kernels.
+# Empty Numba's cache (edits to kernels and their callees are noticed without it: src/rayaccel/_cache_key.py).
 clean-cache:
 	find src -name '*.nbi' -delete -o -name '*.nbc' -delete

@@ -3,12 +3,9 @@ array that reaches one is validated and converted here, once."""
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
-from numba import prange
 
-from ._jit import kernel, parallel_kernel
+from ._jit import kernel, on_threads
 
 __all__ = ["as_points", "as_index_triples", "as_per_ray", "as_positive_int", "check_number", "first_zero_row",
            "check_ray_arrays"]
@@ -32,19 +29,20 @@ def first_zero_row(array):
     return -1
 
 
-@parallel_kernel
-def _ray_defects(origins, directions):
-    """How many rows of ``origins`` and of ``directions`` hold a NaN or infinite coordinate,
-    and how many rows of ``directions`` are all zero: one pass over both, on all threads."""
+@kernel
+def _ray_defects(origins, directions, first, end):
+    """How many of the rows ``first:end`` of ``origins`` and of ``directions`` hold a NaN or
+    infinite coordinate, and how many of those rows of ``directions`` are all zero."""
     bad_origins = 0
     bad_directions = 0
     zero_directions = 0
-    for i in prange(origins.shape[0]):
+    for i in range(first, end):
         ox, oy, oz = origins[i, 0], origins[i, 1], origins[i, 2]
         dx, dy, dz = directions[i, 0], directions[i, 1], directions[i, 2]
-        bad_origins += not (math.isfinite(ox) and math.isfinite(oy) and math.isfinite(oz))
-        bad_directions += not (math.isfinite(dx) and math.isfinite(dy) and math.isfinite(dz))
-        zero_directions += dx == 0.0 and dy == 0.0 and dz == 0.0
+        # x * 0 is 0 for a finite x and NaN for an infinite or NaN one: no branches, so LLVM vectorises
+        bad_origins += ox * 0.0 + oy * 0.0 + oz * 0.0 != 0.0
+        bad_directions += dx * 0.0 + dy * 0.0 + dz * 0.0 != 0.0
+        zero_directions += (dx == 0.0) & (dy == 0.0) & (dz == 0.0)
     return bad_origins, bad_directions, zero_directions
 
 
@@ -57,7 +55,8 @@ def _nonfinite_error(name: str, array: np.ndarray, count: int) -> ValueError:
 def check_ray_arrays(origins: np.ndarray, directions: np.ndarray) -> None:
     """Raise ``ValueError`` for NaN or infinite coordinates in the (n, 3) float64 ``origins`` or
     ``directions``, or an all-zero direction (a ray without a direction has no first hit)."""
-    bad_origins, bad_directions, zero_directions = _ray_defects(origins, directions)
+    counts = on_threads(lambda first, end, _: _ray_defects(origins, directions, first, end), len(origins))
+    bad_origins, bad_directions, zero_directions = np.sum(counts, axis=0)
     if bad_origins:
         raise _nonfinite_error("origins", origins, bad_origins)
     if bad_directions:

@@ -1,19 +1,20 @@
 """Per-primitive bounding boxes and centroids, the only view of a scene that builders get.
 
-The boxes and the scene's box come from one parallel pass: each chunk of
-primitives reduces its own part of the scene box, so the scene box costs no
-second pass over the boxes. Centroids are a separate kernel, as only the BVH
-builders read them.
+The boxes and the scene's box come from one pass: each chunk of primitives,
+one per thread, reduces its own part of the scene box, so the scene box costs
+no second pass over the boxes. Centroids are a separate kernel, as only the BVH
+builders read them. Each primitive kind has its own small serial kernel (the
+kind a module constant, so Numba compiles only that kind's branch), run on
+Python threads since the kernels release the GIL: a first build compiles one
+kind's pass, not a ``prange`` kernel with both kinds in it.
 """
 
 from __future__ import annotations
 
 import numpy as np
-from numba import prange
 
-from .._jit import inline_kernel, parallel_kernel, thread_count
-from ..counting_sort import chunk_range
-from .kinds import SPHERE
+from .._jit import inline_kernel, kernel, on_threads, thread_count
+from .kinds import SPHERE, TRIANGLE
 
 __all__ = ["primitive_extent", "primitive_bounds", "triangle_centroids", "sphere_centroids"]
 
@@ -27,43 +28,57 @@ def primitive_extent(kind, geometry, p, k):
     return min(a, b, c), max(a, b, c)
 
 
-@parallel_kernel
-def _primitive_bounds(kind, geometry, n_chunks):
-    n = geometry.shape[0]
-    lo = np.empty((n, 3))
-    hi = np.empty((n, 3))
-    chunk_box = np.empty((n_chunks, 6))
-    for c in prange(n_chunks):
-        chunk_box[c, :3] = np.inf
-        chunk_box[c, 3:] = -np.inf
-        first, end = chunk_range(n, n_chunks, c)
-        for p in range(first, end):
-            for k in range(3):
-                lo[p, k], hi[p, k] = primitive_extent(kind, geometry, p, k)
-                chunk_box[c, k] = min(chunk_box[c, k], lo[p, k])
-                chunk_box[c, k + 3] = max(chunk_box[c, k + 3], hi[p, k])
-    scene_lo = np.empty(3)
-    scene_hi = np.empty(3)
+@kernel
+def _triangle_boxes(geometry, first, end, lo, hi, box):
+    """Boxes of triangles ``first:end`` into ``lo``, ``hi``; their union into ``box`` (6,)."""
+    _boxes(TRIANGLE, geometry, first, end, lo, hi, box)
+
+
+@kernel
+def _sphere_boxes(geometry, first, end, lo, hi, box):
+    """Boxes of spheres ``first:end`` into ``lo``, ``hi``; their union into ``box`` (6,)."""
+    _boxes(SPHERE, geometry, first, end, lo, hi, box)
+
+
+@inline_kernel
+def _boxes(kind, geometry, first, end, lo, hi, box):
+    """The pass of the two kernels above, for primitives of ``kind``."""
     for k in range(3):
-        scene_lo[k] = chunk_box[:, k].min()
-        scene_hi[k] = chunk_box[:, k + 3].max()
-    return lo, hi, scene_lo, scene_hi
+        box[k] = np.inf
+        box[k + 3] = -np.inf
+    for p in range(first, end):
+        for k in range(3):
+            lo[p, k], hi[p, k] = primitive_extent(kind, geometry, p, k)
+            box[k] = min(box[k], lo[p, k])
+            box[k + 3] = max(box[k + 3], hi[p, k])
+
+
+@kernel
+def _triangle_centroids(geometry, first, end, centroid):
+    """Vertex means of triangles ``first:end`` into ``centroid``."""
+    for p in range(first, end):
+        for k in range(3):
+            centroid[p, k] = (geometry[p, k] + geometry[p, 3 + k] + geometry[p, 6 + k]) / 3.0
 
 
 def primitive_bounds(kind: int, geometry: np.ndarray):
     """``(lo, hi, scene_lo, scene_hi)``: the boxes (n, 3) of the primitives, triangles stored as
     rows of 9 floats or spheres as rows ``x, y, z, r``, and the box (3,) around them all."""
-    return _primitive_bounds(kind, geometry, thread_count())
-
-
-@parallel_kernel
-def triangle_centroids(geometry):
-    """(n, 3) vertex means of triangles stored as rows of 9 floats."""
     n = geometry.shape[0]
-    centroid = np.empty((n, 3))
-    for p in prange(n):
-        for k in range(3):
-            centroid[p, k] = (geometry[p, k] + geometry[p, 3 + k] + geometry[p, 6 + k]) / 3.0
+    lo = np.empty((n, 3))
+    hi = np.empty((n, 3))
+    chunk_box = np.empty((max(thread_count(), 1), 6))  # on_threads makes at most one chunk per thread
+    chunk_box[:, :3] = np.inf
+    chunk_box[:, 3:] = -np.inf
+    boxes = _sphere_boxes if kind == SPHERE else _triangle_boxes
+    on_threads(lambda first, end, c: boxes(geometry, first, end, lo, hi, chunk_box[c]), n)
+    return lo, hi, chunk_box[:, :3].min(axis=0), chunk_box[:, 3:].max(axis=0)
+
+
+def triangle_centroids(geometry: np.ndarray) -> np.ndarray:
+    """(n, 3) vertex means of triangles stored as rows of 9 floats."""
+    centroid = np.empty((geometry.shape[0], 3))
+    on_threads(lambda first, end, c: _triangle_centroids(geometry, first, end, centroid), geometry.shape[0])
     return centroid
 
 

@@ -109,7 +109,8 @@ def compact(node_box, left, right, leaf_first, leaf_count, root):
         sp -= 1
         node = stack[sp]
         slot = target[sp]
-        out_box[slot] = node_box[node]
+        for k in range(6):
+            out_box[slot, k] = node_box[node, k]
         if left[node] >= 0:
             out_first[slot] = n_out
             out_count[slot] = 0

@@ -28,7 +28,7 @@ import math
 import numpy as np
 from numba import prange
 
-from ..._jit import inline_kernel, kernel, parallel_kernel, thread_count
+from ..._jit import inline_kernel, kernel, on_threads, parallel_kernel, thread_count
 from ...counting_sort import chunk_range, counts_to_starts
 from ...geometry.overlap import prim_overlaps_box
 from .layout import GridArrays
@@ -196,15 +196,22 @@ def _insert(prims, ranges, kind, geom, exact, grid_lo, cell_size, res, slab_dept
                         min(z1, slab_z1), 0, row_end, cell_prims, fill)
 
 
-@parallel_kernel
-def count_references(prim_lo, prim_hi, grid_lo, cell_size, res):
-    """References a bounding-box insertion into this grid would store (an upper bound for
-    exact insertion)."""
+@kernel
+def _count_references(prim_lo, prim_hi, grid_lo, cell_size, res, first, end):
+    """:func:`count_references` of primitives ``first:end``."""
     total = 0
-    for prim in prange(prim_lo.shape[0]):
+    for prim in range(first, end):
         x0, x1, y0, y1, z0, z1 = prim_cells(prim_lo, prim_hi, prim, grid_lo, cell_size, res)
         total += (x1 - x0 + 1) * (y1 - y0 + 1) * (z1 - z0 + 1)
     return total
+
+
+def count_references(prim_lo, prim_hi, grid_lo, cell_size, res) -> int:
+    """References a bounding-box insertion into this grid would store (an upper bound for
+    exact insertion): a serial kernel per chunk on threads, as fast here as a ``prange``
+    reduction and cheaper to compile (1.3 s less on the bunny's first grid build)."""
+    return sum(on_threads(lambda first, end, _: _count_references(prim_lo, prim_hi, grid_lo, cell_size, res, first,
+                                                                  end), prim_lo.shape[0]))
 
 
 def capped_resolution(bounds, lo: np.ndarray, hi: np.ndarray, res: np.ndarray) -> np.ndarray:

@@ -8,16 +8,17 @@ need many more cells -- are searched by a BVH instead. The grid is built as in
 :mod:`..grid.build_uniform`; the cells with more than ``threshold`` references
 then get a BVH over their references with the top-down binned SAH builder of
 :mod:`..bvh.build_top_down`, all cells in parallel, each into its own block
-of node slots.
+of node slots; the hybrid shares that builder's compiled kernel with ``bvh-binned``.
 """
 
 from __future__ import annotations
 
-import numpy as np
-from numba import prange
+from concurrent.futures import ThreadPoolExecutor
 
-from ..._jit import parallel_kernel
-from ..bvh.build_top_down import SAH_BINNED, build_subtree
+import numpy as np
+
+from ..._jit import thread_count
+from ..bvh.build_top_down import SAH_BINNED, SUBTREE_KERNELS
 from ..bvh.nodes import node_depths
 from ..grid.build_uniform import build_density_grid
 from .layout import GridBvhArrays
@@ -25,17 +26,24 @@ from .layout import GridBvhArrays
 __all__ = ["build_grid_bvh"]
 
 
-@parallel_kernel
 def _build_cell_bvhs(lo, hi, centroid, order, row_first, row_end, cell_root, max_leaf_size, bins, traversal_cost,
                      intersection_cost, node_box, node_first, node_count):
     """Build the BVH of every dense cell ``d`` over ``order[row_first[d]:row_end[d]]``, rooted in
-    slot ``cell_root[d]`` with its other nodes in the slots after it."""
-    unused_codes = np.zeros(0, dtype=np.int64)
-    for d in prange(row_first.shape[0]):
-        deferred = np.zeros((1, 3), dtype=np.int64)
-        build_subtree(lo, hi, centroid, order, unused_codes, SAH_BINNED, max_leaf_size, bins, traversal_cost,
-                      intersection_cost, node_box, node_first, node_count, cell_root[d], row_first[d], row_end[d],
-                      cell_root[d] + 1, 0, deferred)
+    slot ``cell_root[d]`` with its other nodes in the slots after it: the cells, largest first,
+    dealt out to two shares per thread, each share built by the binned top-down builder's
+    GIL-free entry kernel on a thread of its own."""
+    tasks = np.stack((cell_root, row_first, row_end), axis=1).astype(np.int64)
+    tasks = tasks[np.argsort(row_first - row_end, kind="stable")]
+    slots = tasks[:, 0] + 1
+    threads = thread_count()
+    workers = 2 * threads
+    build = SUBTREE_KERNELS[SAH_BINNED]
+    common = (lo, hi, centroid, order, np.zeros(0, dtype=np.int64), int(max_leaf_size), int(bins),
+              float(traversal_cost), float(intersection_cost), node_box, node_first, node_count)
+    unused = np.zeros((1, 3), dtype=np.int64)
+    shares = [np.arange(worker, len(tasks), workers) for worker in range(min(workers, len(tasks)))]
+    with ThreadPoolExecutor(threads) as pool:
+        list(pool.map(lambda share: build(*common, tasks[share], slots[share], 0, unused), shares))
 
 
 def build_grid_bvh(bounds, kind, geom, density, threshold, max_leaf_size, bins, traversal_cost, intersection_cost,
