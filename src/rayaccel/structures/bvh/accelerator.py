@@ -7,7 +7,7 @@ import time
 import numba
 import numpy as np
 
-from ..._jit import thread_count
+from ..._jit import on_threads, thread_count
 from ..._validate import check_number
 from ...geometry.kdop import KDOP_NORMALS, kdop_surface_areas
 from ...stats import surface_area_stats
@@ -24,6 +24,9 @@ from .traverse import BOX, KDOP, SPHERE_VOLUME, bvh_trace_kernel
 from .traverse_wide import wide_trace_kernel
 from .volumes import fit_kdops, fit_spheres
 from .wide import wide_records, wide_tree
+
+TRACE_CHUNK = 1024
+"""Fewest rays per thread in the four-wide walk (fewer rays run on one thread)."""
 
 __all__ = ["BVH_CLASSES"]
 
@@ -150,10 +153,12 @@ class BoundingVolumeHierarchy(Accelerator):
         rows = numba.config.NUMBA_NUM_THREADS
         if self.wide is not None:
             depth = 3 * self.max_depth + 8
-            wide_trace_kernel(b.node_records, self.wide, self.wide.view(np.int32), b.prim_order, self.scene.kind,
-                              self.geometry, *batch, any_hit,
-                              np.empty((rows, depth), dtype=np.int32), np.empty((rows, depth), dtype=np.int32),
-                              np.empty((rows, depth)), action, work)
+            links = self.wide.view(np.int32)
+            stack_link, stack_count = np.empty((rows, depth), dtype=np.int32), np.empty((rows, depth), dtype=np.int32)
+            stack_t = np.empty((rows, depth))
+            on_threads(lambda first, end, c: wide_trace_kernel(
+                first, end, c, b.node_records, self.wide, links, b.prim_order, self.scene.kind, self.geometry, *batch,
+                any_hit, stack_link, stack_count, stack_t, action, work), len(batch.origins), TRACE_CHUNK)
             return
         stack_node = np.empty((rows, self.max_depth + 2), dtype=np.int32)
         stack_t = np.empty((rows, self.max_depth + 2))

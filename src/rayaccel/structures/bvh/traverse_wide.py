@@ -25,9 +25,8 @@ what :func:`.traverse.enter_box` computes, with the same NaN-safe comparisons.
 from __future__ import annotations
 
 import numpy as np
-from numba import prange
 
-from ..._jit import inline_kernel, parallel_kernel, prefetch, thread_id
+from ..._jit import chunk_kernel, inline_kernel, prefetch
 from ...geometry.primitive import ray_setup
 from ..actions import NEAREST, finish_ray, visit_prim
 from .traverse import enter_box
@@ -60,21 +59,21 @@ def _push(records, geom, stack_link, stack_count, stack_t, tid, sp, t, link, cou
     return sp + 1
 
 
-@parallel_kernel
-def wide_trace_kernel(root_box, records, links, prim_order, kind, geom, origins, directions, t_min, t_max, hit_slot,
-                      any_hit, stack_link, stack_count, stack_t, action, work):
-    """Trace every ray through the wide BVH; ``geom`` is in leaf order (``geom[prim_order]``),
+@chunk_kernel
+def wide_trace_kernel(first, end, tid, root_box, records, links, prim_order, kind, geom, origins, directions, t_min,
+                      t_max, hit_slot, any_hit, stack_link, stack_count, stack_t, action, work):
+    """Trace rays ``first`` to ``end - 1`` through the wide BVH, keeping their stacks in row
+    ``tid`` (one chunk of :func:`rayaccel._jit.on_threads`); ``geom`` is in leaf order (``geom[prim_order]``),
     ``links`` is ``records`` seen as int32, and row 0 of ``root_box`` (a binary node record)
     the whole tree's box, which a ray must enter before the root's four children are
     tested. Each primitive of a leaf gets the leaf action (:mod:`..actions`). Counters:
     wide nodes and leaves visited (a leaf counts as a node too), primitive tests."""
     count_work = work.shape[0] > 0
     nearest_first = not any_hit and action.mode == NEAREST
-    for i in prange(origins.shape[0]):
+    for i in range(first, end):
         ox, oy, oz = origins[i, 0], origins[i, 1], origins[i, 2]
         dx, dy, dz = directions[i, 0], directions[i, 1], directions[i, 2]
         ray = ray_setup(ox, oy, oz, dx, dy, dz)
-        tid = thread_id()
         ix, iy, iz = 1.0 / dx, 1.0 / dy, 1.0 / dz
         origin = (ox, oy, oz)
         inv_dir = (ix, iy, iz)
