@@ -34,15 +34,7 @@ import numpy as np
 from _common import ensure_competitors, incoherent_rays, primary_rays
 
 import rayaccel as ra
-
-
-def _open3d_scene(mesh):
-    import open3d
-
-    scene = open3d.t.geometry.RaycastingScene()
-    scene.add_triangles(open3d.core.Tensor(mesh.vertices.astype(np.float32)),
-                        open3d.core.Tensor(mesh.faces.astype(np.uint32)))
-    return open3d, scene
+from rayaccel.experiments.queries import open3d_scene
 
 
 def main() -> None:
@@ -61,7 +53,7 @@ def main() -> None:
         calls.append(("rayaccel", name, "count", lambda o=o, d=d: accel.count(o, d)))
         calls.append(("rayaccel", name, "list", lambda o=o, d=d: np.diff(accel.intersect_all(o, d).offsets)))
     if have_open3d:
-        open3d, scene = _open3d_scene(mesh)
+        scene, open3d = open3d_scene(mesh)
         cores = os.cpu_count() or 1
         for name, (o, d) in rays.items():
             tensor = open3d.core.Tensor(np.hstack([o, d]).astype(np.float32))

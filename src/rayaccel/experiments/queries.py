@@ -24,7 +24,7 @@ from ..catalog import load_scene
 from ..structures.registry import build
 from ._report import markdown_table, new_figure, save_figure
 
-__all__ = ["QueryRow", "query_points", "run", "write_report"]
+__all__ = ["QueryRow", "query_points", "open3d_scene", "run", "write_report"]
 
 
 @dataclass
@@ -58,7 +58,8 @@ def query_points(mesh, n: int, seed: int = 0) -> np.ndarray:
     return np.ascontiguousarray(np.concatenate([surface, box]))
 
 
-def _open3d(mesh):
+def open3d_scene(mesh):
+    """``(RaycastingScene over the mesh, the open3d module)``, or None when Open3D is not installed."""
     try:
         import open3d as o3d
     except ImportError:
@@ -94,7 +95,7 @@ def run(scene_name: str = "dragon-203k", n: int = 262_144, rounds: int = 3, meth
         ("signed_distance", f"rayaccel {method}"): lambda: accel.signed_distance(points),
     }
     start = time.perf_counter()
-    o3d_scene = _open3d(mesh)
+    o3d_scene = open3d_scene(mesh)
     if o3d_scene is not None:
         scene, o3d = o3d_scene
         builds["Open3D RaycastingScene (lazy: builds on the first query)"] = time.perf_counter() - start

@@ -254,12 +254,13 @@ class RayMeshIntersector:
 
     def contains_points(self, points):
         """(n,) bool: whether each point is inside the mesh, by the generalized winding number
-        (rayaccel's ``contains``: ``|w| > 0.5``, fast winding numbers of Barill et al. 2018).
+        (rayaccel's ``contains``: ``|w| > 0.5``; see :mod:`rayaccel.structures.ray_winding`).
 
         trimesh's engines count the crossings of a ray each way from the point and cast again
-        in a random direction where the two disagree; the winding number needs no ray, gives
-        the same answer on a closed mesh away from its surface, and stays right where the mesh
-        has holes or duplicated triangles, which break parity. Points on the surface are
+        in a random direction where the two disagree; the winding number counts one ray's
+        crossings signed by the side they leave through, adds the caps over the mesh's holes,
+        gives the same answer on a closed mesh away from its surface, and stays right where the
+        mesh has holes or duplicated triangles, which break parity. Points on the surface are
         undecided either way.
         """
         points = _points(points)
