@@ -6,7 +6,7 @@ import functools
 
 import numpy as np
 
-from .._jit import inline_kernel
+from .._jit import inline_kernel, on_threads
 from .._validate import as_positive_int
 from ..geometry.sphere import sphere_hit_coords
 from ..ray_order import MIN_RAYS, coherent_batch
@@ -16,10 +16,14 @@ from .actions import NEAREST, hit_count, hit_list, intersect_references, is_clos
 from .grid.mailbox import MailboxPool
 from .point_queries import PointQueries, any_dask
 
-__all__ = ["Accelerator", "is_closer", "intersect_references", "store_hit", "settled_before", "EXIT_MARGIN"]
+__all__ = ["Accelerator", "is_closer", "intersect_references", "store_hit", "settled_before", "walk_rays",
+           "EXIT_MARGIN", "RAY_CHUNK"]
 
 # Relative margin by which a hit must lie before a cell's exit for the walk to stop there.
 EXIT_MARGIN = 1e-9
+
+RAY_CHUNK = 1024
+"""Fewest rays per thread in a ray walk (fewer rays run on one thread)."""
 
 LIST_SLOTS = (8, 64)
 """Hits per ray that the listing walks of :meth:`Accelerator.intersect_all` have room for: all
@@ -41,6 +45,14 @@ def settled_before(best_prim, best_t, t_exit):
     cell too, where a primitive hit at the same ``t`` with a lower index may wait."""
     return best_prim >= 0 and best_t < t_exit - EXIT_MARGIN * abs(t_exit)
 
+
+
+def walk_rays(walk, n_rays: int, *args) -> None:
+    """Run a structure's ray walk, a :func:`rayaccel._jit.chunk_kernel` taking ``(ray_first,
+    ray_end, tid, *args)``, over ``n_rays`` rays in one chunk per thread (at least
+    :data:`RAY_CHUNK` rays each); ``tid`` picks the chunk's rows of per-thread stacks and
+    mailboxes."""
+    on_threads(lambda first, end, chunk: walk(first, end, chunk, *args), n_rays, RAY_CHUNK)
 
 class Accelerator(PointQueries):
     """A built acceleration structure over a scene.

@@ -5,21 +5,22 @@ from __future__ import annotations
 import numpy as np
 from numba import prange
 
-from .._jit import parallel_kernel
+from .._jit import chunk_kernel, parallel_kernel
 from ..geometry.primitive import ray_setup
 from ..geometry.winding import prim_winding
 from .actions import finish_ray, visit_prim
-from .base import Accelerator
+from .base import Accelerator, walk_rays
 from .point_actions import nearest_in_refs
 
 __all__ = ["BruteForce", "brute_force_kernel", "brute_force_nearest_kernel", "brute_force_winding_kernel"]
 
 
-@parallel_kernel
-def brute_force_kernel(kind, geom, origins, directions, t_min, t_max, hit_slot, any_hit, action, work):
+@chunk_kernel
+def brute_force_kernel(ray_first, ray_end, tid, kind, geom, origins, directions, t_min, t_max, hit_slot, any_hit,
+                       action, work):
     """Every ray against every primitive, the leaf action (:mod:`.actions`) applied to each."""
     n_prims = geom.shape[0]
-    for i in prange(origins.shape[0]):
+    for i in range(ray_first, ray_end):
         ray = ray_setup(origins[i, 0], origins[i, 1], origins[i, 2],
                         directions[i, 0], directions[i, 1], directions[i, 2])
         best_t = t_max[i]
@@ -70,7 +71,8 @@ class BruteForce(Accelerator):
         super().__init__(scene, {})
 
     def _trace(self, batch, any_hit, action, work):
-        brute_force_kernel(self.scene.kind, self.scene.geometry, *batch, any_hit, action, work)
+        walk_rays(brute_force_kernel, len(batch.origins), self.scene.kind, self.scene.geometry, *batch, any_hit, action,
+                  work)
 
     def _nearest(self, points, limit_d2, out_d2, out_prim):
         """Point queries test every primitive, too; the winding number is the exact sum."""

@@ -7,11 +7,11 @@ import time
 import numba
 import numpy as np
 
-from ..._jit import on_threads, thread_count
+from ..._jit import thread_count
 from ..._validate import check_number
 from ...geometry.kdop import KDOP_NORMALS, kdop_surface_areas
 from ...stats import surface_area_stats
-from ..base import Accelerator
+from ..base import Accelerator, walk_rays
 from .build_ploc import build_ploc
 from .build_top_down import MORTON, OBJECT_MEDIAN, SAH_BINNED, SAH_SWEEP, SPATIAL_MEDIAN, build_top_down
 from .fast_winding import winding_moments
@@ -24,9 +24,6 @@ from .traverse import BOX, KDOP, SPHERE_VOLUME, bvh_trace_kernel
 from .traverse_wide import wide_trace_kernel
 from .volumes import fit_kdops, fit_spheres
 from .wide import wide_records, wide_tree
-
-TRACE_CHUNK = 1024
-"""Fewest rays per thread in the four-wide walk (fewer rays run on one thread)."""
 
 __all__ = ["BVH_CLASSES"]
 
@@ -156,15 +153,14 @@ class BoundingVolumeHierarchy(Accelerator):
             links = self.wide.view(np.int32)
             stack_link, stack_count = np.empty((rows, depth), dtype=np.int32), np.empty((rows, depth), dtype=np.int32)
             stack_t = np.empty((rows, depth))
-            on_threads(lambda first, end, c: wide_trace_kernel(
-                first, end, c, b.node_records, self.wide, links, b.prim_order, self.scene.kind, self.geometry, *batch,
-                any_hit, stack_link, stack_count, stack_t, action, work), len(batch.origins), TRACE_CHUNK)
+            walk_rays(wide_trace_kernel, len(batch.origins), b.node_records, self.wide, links, b.prim_order,
+                      self.scene.kind, self.geometry, *batch, any_hit, stack_link, stack_count, stack_t, action, work)
             return
         stack_node = np.empty((rows, self.max_depth + 2), dtype=np.int32)
         stack_t = np.empty((rows, self.max_depth + 2))
-        bvh_trace_kernel(self.bounds_kind, b.node_records, self._volume_rows, b.node_records.view(np.int32),
-                         b.prim_order, self.scene.kind, self.geometry, KDOP_NORMALS, *batch, any_hit, stack_node,
-                         stack_t, action, work)
+        walk_rays(bvh_trace_kernel, len(batch.origins), self.bounds_kind, b.node_records, self._volume_rows,
+                  b.node_records.view(np.int32), b.prim_order, self.scene.kind, self.geometry, KDOP_NORMALS, *batch,
+                  any_hit, stack_node, stack_t, action, work)
 
     def _nearest(self, points, limit_d2, out_d2, out_prim):
         """The walk by distance of :mod:`.nearest` over the binary tree."""

@@ -17,9 +17,8 @@ ordering pbrt-v4 uses in ``Bounds3::IntersectP``.
 from __future__ import annotations
 
 import numpy as np
-from numba import prange
 
-from ..._jit import inline_kernel, parallel_kernel, thread_id
+from ..._jit import chunk_kernel, inline_kernel
 from ...geometry.kdop import KDOP_NORMALS
 from ...geometry.primitive import ray_setup
 from ...geometry.sphere import sphere_span
@@ -117,10 +116,9 @@ def volume_ray_setup(ox, oy, oz, dx, dy, dz, normals, with_diagonals):
     return proj_o, proj_inv, near_faces
 
 
-@parallel_kernel
-def bvh_trace_kernel(bounds_kind, node_box, node_volume, node_links, prim_order, kind, geom,
-                     normals, origins, directions, t_min, t_max, hit_slot, any_hit, stack_node, stack_t, action,
-                     work):
+@chunk_kernel
+def bvh_trace_kernel(ray_first, ray_end, tid, bounds_kind, node_box, node_volume, node_links, prim_order, kind, geom,
+                     normals, origins, directions, t_min, t_max, hit_slot, any_hit, stack_node, stack_t, action, work):
     """Trace every ray through the BVH; ``geom`` is in leaf order (``geom[prim_order]``).
 
     ``node_box`` is the packed float32 record array of :func:`.layout.pack_nodes`
@@ -128,11 +126,10 @@ def bvh_trace_kernel(bounds_kind, node_box, node_volume, node_links, prim_order,
     leaf each primitive gets the leaf action (:mod:`..actions`).
     """
     count_work = work.shape[0] > 0
-    for i in prange(origins.shape[0]):
+    for i in range(ray_first, ray_end):
         ox, oy, oz = origins[i, 0], origins[i, 1], origins[i, 2]
         dx, dy, dz = directions[i, 0], directions[i, 1], directions[i, 2]
         ray = ray_setup(ox, oy, oz, dx, dy, dz)
-        tid = thread_id()  # stacks are indexed in place: a row view would touch a shared refcount per ray
         proj_o, proj_inv, near_faces = volume_ray_setup(ox, oy, oz, dx, dy, dz, normals, bounds_kind == KDOP)
         ray_t_min = t_min[i]
         best_t = t_max[i]

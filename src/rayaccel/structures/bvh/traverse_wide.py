@@ -60,9 +60,9 @@ def _push(records, geom, stack_link, stack_count, stack_t, tid, sp, t, link, cou
 
 
 @chunk_kernel
-def wide_trace_kernel(first, end, tid, root_box, records, links, prim_order, kind, geom, origins, directions, t_min,
-                      t_max, hit_slot, any_hit, stack_link, stack_count, stack_t, action, work):
-    """Trace rays ``first`` to ``end - 1`` through the wide BVH, keeping their stacks in row
+def wide_trace_kernel(ray_first, ray_end, tid, root_box, records, links, prim_order, kind, geom, origins, directions,
+                      t_min, t_max, hit_slot, any_hit, stack_link, stack_count, stack_t, action, work):
+    """Trace rays ``ray_first`` to ``ray_end - 1`` through the wide BVH, keeping their stacks in row
     ``tid`` (one chunk of :func:`rayaccel._jit.on_threads`); ``geom`` is in leaf order (``geom[prim_order]``),
     ``links`` is ``records`` seen as int32, and row 0 of ``root_box`` (a binary node record)
     the whole tree's box, which a ray must enter before the root's four children are
@@ -70,7 +70,7 @@ def wide_trace_kernel(first, end, tid, root_box, records, links, prim_order, kin
     wide nodes and leaves visited (a leaf counts as a node too), primitive tests."""
     count_work = work.shape[0] > 0
     nearest_first = not any_hit and action.mode == NEAREST
-    for i in range(first, end):
+    for i in range(ray_first, ray_end):
         ox, oy, oz = origins[i, 0], origins[i, 1], origins[i, 2]
         dx, dy, dz = directions[i, 0], directions[i, 1], directions[i, 2]
         ray = ray_setup(ox, oy, oz, dx, dy, dz)

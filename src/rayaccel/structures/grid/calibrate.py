@@ -122,7 +122,7 @@ class _Traversal:
     def _run(self, work):
         n = len(self.rays[0])
         g = self.grid
-        grid_trace_kernel(g.lo, g.hi, g.res, g.cell_size, g.cell_first, g.cell_prims, self.scene.kind,
+        grid_trace_kernel(0, n, 0, g.lo, g.hi, g.res, g.cell_size, g.cell_first, g.cell_prims, self.scene.kind,
                           self.scene.geometry, *self.rays, False, self.mailbox, self.stamp,
                           nearest_hit(np.full(n, np.inf), np.full(n, -1, dtype=np.int64), np.zeros(n), np.zeros(n)),
                           work)

@@ -19,9 +19,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import prange
 
-from ..._jit import inline_kernel, kernel, parallel_kernel, thread_id
+from ..._jit import chunk_kernel, inline_kernel, kernel
 from ...geometry.box import clip_to_box
 from ...geometry.primitive import ray_setup
 from ..actions import finish_ray, intersect_references
@@ -61,20 +60,18 @@ def dda_step(cx, cy, cz, next_x, next_y, next_z, step_x, step_y, step_z, delta_x
     return cx, cy, cz, next_x, next_y, next_z, inside
 
 
-@parallel_kernel
-def grid_trace_kernel(grid_lo, grid_hi, res, cell_size, cell_first, cell_prims, kind, geom,
-                      origins, directions, t_min, t_max, hit_slot, any_hit, mailbox, ray_id_base,
-                      action, work):
+@chunk_kernel
+def grid_trace_kernel(ray_first, ray_end, tid, grid_lo, grid_hi, res, cell_size, cell_first, cell_prims, kind, geom,
+                      origins, directions, t_min, t_max, hit_slot, any_hit, mailbox, ray_id_base, action, work):
     """Trace every ray.
 
     ``mailbox`` is (threads, n_prims), or empty to disable mailboxing; ray ``i``
     stamps it with ``ray_id_base + i``, so a mailbox can be reused by later
     calls without clearing as long as each call gets a fresh range of ids.
     """
-    use_mailbox = mailbox.shape[0] > 0
     nx, ny = res[0], res[1]
     count_work = work.shape[0] > 0
-    for i in prange(origins.shape[0]):
+    for i in range(ray_first, ray_end):
         ox, oy, oz = origins[i, 0], origins[i, 1], origins[i, 2]
         dx, dy, dz = directions[i, 0], directions[i, 1], directions[i, 2]
         t_enter, t_exit = clip_to_box(grid_lo, grid_hi, ox, oy, oz, dx, dy, dz, t_min[i], t_max[i])
@@ -84,7 +81,6 @@ def grid_trace_kernel(grid_lo, grid_hi, res, cell_size, cell_first, cell_prims, 
         cx, step_x, next_x, delta_x = axis_start(ox, dx, t_enter, grid_lo[0], cell_size[0], res[0])
         cy, step_y, next_y, delta_y = axis_start(oy, dy, t_enter, grid_lo[1], cell_size[1], res[1])
         cz, step_z, next_z, delta_z = axis_start(oz, dz, t_enter, grid_lo[2], cell_size[2], res[2])
-        tid = thread_id() if use_mailbox else 0
         stamp = ray_id_base + i
         best_t = t_max[i]
         best_prim = -1

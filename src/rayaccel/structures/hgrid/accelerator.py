@@ -9,7 +9,7 @@ import numpy as np
 
 from ..._validate import check_number
 from ...stats import box_area, surface_area_stats
-from ..base import Accelerator
+from ..base import Accelerator, walk_rays
 from ..grid.mailbox import MailboxPool
 from ..grid.nearest import grid_nearest
 from .build_nested import build_hierarchical_grid
@@ -67,9 +67,9 @@ class HierarchicalGrid(Accelerator):
         saved_int = np.empty((rows, levels, 7), dtype=np.int64)
         saved_float = np.empty((rows, levels, 7))
         with self._mailboxes_for(action).lend(len(batch.origins)) as (mailbox, base):
-            hgrid_trace_kernel(h.lo, h.hi, h.grid_lo, h.grid_res, h.grid_cell_size, h.grid_cell_base, h.cell_child,
-                               h.cell_first, h.cell_prims, self.scene.kind, self.scene.geometry, *batch, any_hit,
-                               mailbox, base, saved_int, saved_float, action, work)
+            walk_rays(hgrid_trace_kernel, len(batch.origins), h.lo, h.hi, h.grid_lo, h.grid_res, h.grid_cell_size,
+                      h.grid_cell_base, h.cell_child, h.cell_first, h.cell_prims, self.scene.kind, self.scene.geometry,
+                      *batch, any_hit, mailbox, base, saved_int, saved_float, action, work)
 
     def _nearest(self, points, limit_d2, out_d2, out_prim):
         """The top grid searched outward in shells, nested grids scanned with pruning (:mod:`..grid.nearest`)."""

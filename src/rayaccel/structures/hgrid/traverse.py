@@ -13,9 +13,7 @@ level; one mailbox stamp per ray serves all levels.
 
 from __future__ import annotations
 
-from numba import prange
-
-from ..._jit import parallel_kernel, thread_id
+from ..._jit import chunk_kernel
 from ...geometry.box import clip_to_box
 from ...geometry.primitive import ray_setup
 from ..actions import finish_ray, intersect_references
@@ -24,21 +22,21 @@ from ..grid.traverse import axis_start, dda_step
 __all__ = ["hgrid_trace_kernel"]
 
 
-@parallel_kernel
-def hgrid_trace_kernel(lo, hi, grid_lo, grid_res, grid_cell_size, grid_cell_base, cell_child, cell_first, cell_prims,
-                       kind, geom, origins, directions, t_min, t_max, hit_slot, any_hit, mailbox, ray_id_base,
-                       saved_int, saved_float, action, work):
-    """Trace every ray; ``saved_int`` (threads, levels, 7) int64 and ``saved_float``
+@chunk_kernel
+def hgrid_trace_kernel(ray_first, ray_end, tid, lo, hi, grid_lo, grid_res, grid_cell_size, grid_cell_base, cell_child,
+                       cell_first, cell_prims, kind, geom, origins, directions, t_min, t_max, hit_slot, any_hit,
+                       mailbox, ray_id_base, saved_int, saved_float, action, work):
+    """Trace rays ``ray_first`` to ``ray_end - 1`` (one chunk of :func:`rayaccel._jit.on_threads`), their
+    stacks in row ``tid``; ``saved_int`` (threads, levels, 7) int64 and ``saved_float``
     (threads, levels, 7) hold the outer walks' DDA states; ``mailbox`` as in the uniform grid."""
     count_work = work.shape[0] > 0
-    for i in prange(origins.shape[0]):
+    for i in range(ray_first, ray_end):
         ox, oy, oz = origins[i, 0], origins[i, 1], origins[i, 2]
         dx, dy, dz = directions[i, 0], directions[i, 1], directions[i, 2]
         t_enter, stretch_end = clip_to_box(lo, hi, ox, oy, oz, dx, dy, dz, t_min[i], t_max[i])
         if t_enter > stretch_end:
             continue
         ray = ray_setup(ox, oy, oz, dx, dy, dz)
-        tid = thread_id()
         stamp = ray_id_base + i
         best_t = t_max[i]
         best_prim = -1

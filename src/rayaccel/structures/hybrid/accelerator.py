@@ -9,7 +9,7 @@ import numpy as np
 
 from ..._validate import check_number
 from ...stats import box_area, surface_area_stats
-from ..base import Accelerator
+from ..base import Accelerator, walk_rays
 from ..grid.mailbox import MailboxPool
 from ..grid.nearest import grid_nearest
 from .build_grid_bvh import build_grid_bvh
@@ -74,9 +74,9 @@ class GridBvh(Accelerator):
         stack_node = np.empty((rows, self.bvh_depth + 2), dtype=np.int32)
         stack_t = np.empty((rows, self.bvh_depth + 2))
         with self._mailboxes_for(action).lend(len(batch.origins)) as (mailbox, base):
-            grid_bvh_trace_kernel(h.lo, h.hi, h.res, h.cell_size, h.cell_first, h.cell_prims, h.cell_root, h.node_box,
-                                  h.node_first, h.node_count, self.scene.kind, self.scene.geometry, *batch, any_hit,
-                                  mailbox, base, stack_node, stack_t, action, work)
+            walk_rays(grid_bvh_trace_kernel, len(batch.origins), h.lo, h.hi, h.res, h.cell_size, h.cell_first,
+                      h.cell_prims, h.cell_root, h.node_box, h.node_first, h.node_count, self.scene.kind,
+                      self.scene.geometry, *batch, any_hit, mailbox, base, stack_node, stack_t, action, work)
 
     def _nearest(self, points, limit_d2, out_d2, out_prim):
         """Grid cells searched outward in shells, a dense cell's BVH walked by distance (:mod:`..grid.nearest`)."""

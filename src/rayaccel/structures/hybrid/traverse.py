@@ -12,9 +12,8 @@ earlier cell already tested. Stacks are per thread.
 from __future__ import annotations
 
 import numpy as np
-from numba import prange
 
-from ..._jit import parallel_kernel, thread_id
+from ..._jit import chunk_kernel
 from ...geometry.box import clip_to_box
 from ...geometry.primitive import ray_setup
 from ..actions import finish_ray, intersect_references
@@ -25,14 +24,15 @@ from ..grid.traverse import axis_start, dda_step
 __all__ = ["grid_bvh_trace_kernel"]
 
 
-@parallel_kernel
-def grid_bvh_trace_kernel(lo, hi, res, cell_size, cell_first, cell_prims, cell_root, node_box, node_first, node_count,
-                          kind, geom, origins, directions, t_min, t_max, hit_slot, any_hit, mailbox, ray_id_base,
-                          stack_node, stack_t, action, work):
-    """Trace every ray; ``mailbox`` as in the uniform grid, stacks (threads, depth + 2)."""
+@chunk_kernel
+def grid_bvh_trace_kernel(ray_first, ray_end, tid, lo, hi, res, cell_size, cell_first, cell_prims, cell_root, node_box,
+                          node_first, node_count, kind, geom, origins, directions, t_min, t_max, hit_slot, any_hit,
+                          mailbox, ray_id_base, stack_node, stack_t, action, work):
+    """Trace rays ``ray_first`` to ``ray_end - 1`` (one chunk of :func:`rayaccel._jit.on_threads`), their
+    stacks in row ``tid``; ``mailbox`` as in the uniform grid, stacks (threads, depth + 2)."""
     nx, ny, nz = res[0], res[1], res[2]
     count_work = work.shape[0] > 0
-    for i in prange(origins.shape[0]):
+    for i in range(ray_first, ray_end):
         ox, oy, oz = origins[i, 0], origins[i, 1], origins[i, 2]
         dx, dy, dz = directions[i, 0], directions[i, 1], directions[i, 2]
         t_enter, t_exit = clip_to_box(lo, hi, ox, oy, oz, dx, dy, dz, t_min[i], t_max[i])
@@ -44,7 +44,6 @@ def grid_bvh_trace_kernel(lo, hi, res, cell_size, cell_first, cell_prims, cell_r
         cx, step_x, next_x, delta_x = axis_start(ox, dx, t_enter, lo[0], cell_size[0], nx)
         cy, step_y, next_y, delta_y = axis_start(oy, dy, t_enter, lo[1], cell_size[1], ny)
         cz, step_z, next_z, delta_z = axis_start(oz, dz, t_enter, lo[2], cell_size[2], nz)
-        tid = thread_id()
         stamp = ray_id_base + i
         ray_t_min = t_min[i]
         best_t, best_prim, best_u, best_v = t_max[i], -1, 0.0, 0.0

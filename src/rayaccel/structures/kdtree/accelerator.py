@@ -12,7 +12,7 @@ import numpy as np
 from ..._jit import kernel, thread_count
 from ..._validate import check_number
 from ...stats import box_area, surface_area_stats
-from ..base import Accelerator
+from ..base import Accelerator, walk_rays
 from ..grid.build_uniform import grid_box
 from .build_sah_binned import build_binned_top
 from .build_sah_events import build_subtrees
@@ -232,8 +232,9 @@ class KdTree(Accelerator):
         stack_node = np.empty((rows, self.max_depth + 2), dtype=np.int32)
         stack_t = np.empty((rows, self.max_depth + 2, 2))
         with self._mailboxes_for(action).lend(len(batch.origins)) as (mailbox, base):
-            kdtree_trace_kernel(k.lo, k.hi, k.node_split, k.node_link, k.leaf_prims, self.scene.kind,
-                                self.scene.geometry, *batch, any_hit, mailbox, base, stack_node, stack_t, action, work)
+            walk_rays(kdtree_trace_kernel, len(batch.origins), k.lo, k.hi, k.node_split, k.node_link, k.leaf_prims,
+                      self.scene.kind, self.scene.geometry, *batch, any_hit, mailbox, base, stack_node, stack_t, action,
+                      work)
 
     def _nearest(self, points, limit_d2, out_d2, out_prim):
         """Near side of each plane first (:mod:`.nearest`)."""

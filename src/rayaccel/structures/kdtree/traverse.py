@@ -22,9 +22,7 @@ Stacks are preallocated per thread, as deep as the tree.
 
 from __future__ import annotations
 
-from numba import prange
-
-from ..._jit import inline_kernel, parallel_kernel, thread_id
+from ..._jit import chunk_kernel, inline_kernel
 from ...geometry.box import clip_to_box
 from ...geometry.primitive import ray_setup
 from ..actions import finish_ray, intersect_references
@@ -39,13 +37,15 @@ def _margin(t):
     return EXIT_MARGIN * abs(t)
 
 
-@parallel_kernel
-def kdtree_trace_kernel(lo, hi, node_split, node_link, leaf_prims, kind, geom, origins, directions, t_min, t_max,
-                        hit_slot, any_hit, mailbox, ray_id_base, stack_node, stack_t, action, work):
-    """Trace every ray; ``stack_node`` (threads, depth) int32 and ``stack_t`` (threads, depth, 2);
+@chunk_kernel
+def kdtree_trace_kernel(ray_first, ray_end, tid, lo, hi, node_split, node_link, leaf_prims, kind, geom, origins,
+                        directions, t_min, t_max, hit_slot, any_hit, mailbox, ray_id_base, stack_node, stack_t, action,
+                        work):
+    """Trace rays ``ray_first`` to ``ray_end - 1`` (one chunk of :func:`rayaccel._jit.on_threads`), their
+    stacks in row ``tid``; ``stack_node`` (threads, depth) int32 and ``stack_t`` (threads, depth, 2);
     ``mailbox`` as in the uniform grid (empty for the closest hit, which needs none)."""
     count_work = work.shape[0] > 0
-    for i in prange(origins.shape[0]):
+    for i in range(ray_first, ray_end):
         o = (origins[i, 0], origins[i, 1], origins[i, 2])
         d = (directions[i, 0], directions[i, 1], directions[i, 2])
         t0, t1 = clip_to_box(lo, hi, o[0], o[1], o[2], d[0], d[1], d[2], t_min[i], t_max[i])
@@ -53,7 +53,6 @@ def kdtree_trace_kernel(lo, hi, node_split, node_link, leaf_prims, kind, geom, o
             continue
         inv = (1.0 / d[0], 1.0 / d[1], 1.0 / d[2])
         ray = ray_setup(o[0], o[1], o[2], d[0], d[1], d[2])
-        tid = thread_id()
         ray_t_min = t_min[i]
         best_t = t_max[i]
         best_prim = -1

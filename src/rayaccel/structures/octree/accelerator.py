@@ -10,7 +10,7 @@ import numpy as np
 
 from ..._validate import check_number
 from ...stats import box_area, surface_area_stats
-from ..base import Accelerator
+from ..base import Accelerator, walk_rays
 from ..grid.build_uniform import grid_box
 from .build_adaptive import build_octree
 from .layout import OctreeArrays
@@ -70,8 +70,9 @@ class Octree(Accelerator):
         stack_node = np.empty((rows, 3 * self.max_depth + 4), dtype=np.int32)
         stack_t = np.empty((rows, 3 * self.max_depth + 4, 2))
         with self._mailboxes_for(action).lend(len(batch.origins)) as (mailbox, base):
-            octree_trace_kernel(o.lo, o.hi, o.node_center, o.node_link, o.leaf_prims, self.scene.kind,
-                                self.scene.geometry, *batch, any_hit, mailbox, base, stack_node, stack_t, action, work)
+            walk_rays(octree_trace_kernel, len(batch.origins), o.lo, o.hi, o.node_center, o.node_link, o.leaf_prims,
+                      self.scene.kind, self.scene.geometry, *batch, any_hit, mailbox, base, stack_node, stack_t, action,
+                      work)
 
     def _nearest(self, points, limit_d2, out_d2, out_prim):
         """Children nearest first by the distance to their cells (:mod:`.nearest`)."""

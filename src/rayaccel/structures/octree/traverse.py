@@ -14,9 +14,8 @@ candidate, and the walk ends once it lies before the leaf's exit
 from __future__ import annotations
 
 import numpy as np
-from numba import prange
 
-from ..._jit import inline_kernel, parallel_kernel, thread_id
+from ..._jit import chunk_kernel, inline_kernel
 from ...geometry.box import clip_to_box
 from ...geometry.primitive import ray_setup
 from ..actions import finish_ray, intersect_references
@@ -40,13 +39,15 @@ def _crossing(o, d, inv, center):
     return (center - o) * inv if d != 0.0 else np.inf
 
 
-@parallel_kernel
-def octree_trace_kernel(lo, hi, node_center, node_link, leaf_prims, kind, geom, origins, directions, t_min, t_max,
-                        hit_slot, any_hit, mailbox, ray_id_base, stack_node, stack_t, action, work):
-    """Trace every ray; ``stack_node`` (threads, 3 * depth + 4) int32, ``stack_t`` (threads, same, 2);
+@chunk_kernel
+def octree_trace_kernel(ray_first, ray_end, tid, lo, hi, node_center, node_link, leaf_prims, kind, geom, origins,
+                        directions, t_min, t_max, hit_slot, any_hit, mailbox, ray_id_base, stack_node, stack_t, action,
+                        work):
+    """Trace rays ``ray_first`` to ``ray_end - 1`` (one chunk of :func:`rayaccel._jit.on_threads`), their
+    stacks in row ``tid``; ``stack_node`` (threads, 3 * depth + 4) int32, ``stack_t`` (threads, same, 2);
     ``mailbox`` as in the uniform grid (empty for the closest hit, which needs none)."""
     count_work = work.shape[0] > 0
-    for i in prange(origins.shape[0]):
+    for i in range(ray_first, ray_end):
         ox, oy, oz = origins[i, 0], origins[i, 1], origins[i, 2]
         dx, dy, dz = directions[i, 0], directions[i, 1], directions[i, 2]
         t0, t1 = clip_to_box(lo, hi, ox, oy, oz, dx, dy, dz, t_min[i], t_max[i])
@@ -54,7 +55,6 @@ def octree_trace_kernel(lo, hi, node_center, node_link, leaf_prims, kind, geom, 
             continue
         ix, iy, iz = 1.0 / dx, 1.0 / dy, 1.0 / dz
         ray = ray_setup(ox, oy, oz, dx, dy, dz)
-        tid = thread_id()
         ray_t_min = t_min[i]
         best_t = t_max[i]
         best_prim = -1
