@@ -7,8 +7,15 @@ import pytest
 from conftest import assert_same_hits, camera_rays, random_rays
 
 import rayaccel as ra
-from rayaccel.ray_order import MIN_RAYS, coherent_batch
+from rayaccel import ray_order
+from rayaccel.ray_order import MIN_RAYS, coherent_batch, last_level_cache_bytes, sorting_pays
 from rayaccel.rays import Hits, prepare_rays
+
+
+@pytest.fixture(autouse=True)
+def sort_every_structure(monkeypatch):
+    """The test scenes fit in any cache, which would leave their rays as given."""
+    monkeypatch.setattr(ray_order, "last_level_cache_bytes", lambda: 0)
 
 
 @pytest.fixture(scope="module")
@@ -66,3 +73,19 @@ def test_coherent_batches_are_left_alone(small_dragon):
     batch = prepare_rays(origins, directions)
     bounds = small_dragon.bounds()
     assert coherent_batch(batch, bounds.scene_lo, bounds.scene_hi) is batch
+
+
+def test_structures_within_half_the_cache_trace_rays_as_given(small_dragon, incoherent_batch, monkeypatch):
+    accel = ra.build(small_dragon, "bvh-binned")
+    batch = prepare_rays(*incoherent_batch)
+    size = accel.stats()["bytes"]
+    monkeypatch.setattr(ray_order, "last_level_cache_bytes", lambda: 2 * size)
+    assert accel._ordered(batch, True) is batch
+    monkeypatch.setattr(ray_order, "last_level_cache_bytes", lambda: 2 * size - 2)
+    assert not np.array_equal(accel._ordered(batch, True).hit_slot, batch.hit_slot)
+    assert accel._ordered(batch, False) is batch
+    assert not sorting_pays(MIN_RAYS - 1, 2 * size)
+
+
+def test_last_level_cache_is_read():
+    assert last_level_cache_bytes.__wrapped__() >= 1 << 20

@@ -9,7 +9,7 @@ import numpy as np
 from .._jit import inline_kernel, on_threads
 from .._validate import as_positive_int
 from ..geometry.sphere import sphere_hit_coords
-from ..ray_order import MIN_RAYS, coherent_batch
+from ..ray_order import coherent_batch, sorting_pays
 from ..rays import WORK_COLUMNS, AllHits, Camera, Hits, RayBatch, RayCounters, prepare_rays
 from ..scene import SPHERE, PrimitiveBounds, Spheres, TriangleMesh
 from .actions import NEAREST, hit_count, hit_list, intersect_references, is_closer, nearest_hit, store_hit
@@ -93,8 +93,9 @@ class Accelerator(PointQueries):
             Also return per-ray work counters in ``hits.counters``.
         reorder : bool
             Trace a batch of ``ray_order.MIN_RAYS`` rays or more in a coherent
-            order (:mod:`rayaccel.ray_order`); the results are in the given order
-            either way. ``False`` traces the rays in the given order.
+            order when the structure is larger than half the last-level cache
+            (:mod:`rayaccel.ray_order`); the results are in the given order either
+            way. ``False`` traces the rays in the given order.
 
         Any input a ``dask.array`` makes every field of the result a lazy Dask array
         chunked as the rays (:func:`rayaccel.distributed.intersect`).
@@ -239,8 +240,18 @@ class Accelerator(PointQueries):
         return counts
 
     def _ordered(self, rays, reorder):
-        """The batch to trace: ``rays`` in a coherent order when asked for and worth it."""
-        return coherent_batch(rays, *self.scene_box) if reorder and len(rays.origins) >= MIN_RAYS else rays
+        """The batch to trace: ``rays`` in a coherent order when asked for and worth it
+        (:func:`rayaccel.ray_order.sorting_pays`)."""
+        if reorder and sorting_pays(len(rays.origins), self._structure_bytes()):
+            return coherent_batch(rays, *self.scene_box)
+        return rays
+
+    def _structure_bytes(self) -> int:
+        """``stats()["bytes"]``, computed once."""
+        size = self.__dict__.get("_bytes")
+        if size is None:
+            size = self.__dict__.setdefault("_bytes", int(self._structure_stats().get("bytes", 0)))
+        return size
 
     def _mailboxes_for(self, action) -> MailboxPool:
         """The mailboxes of a walk with ``action``: the structure's own for the closest hit (none
