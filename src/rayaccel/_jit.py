@@ -31,6 +31,7 @@ floats in Numba.
 from __future__ import annotations
 
 import os
+import queue
 import warnings
 from concurrent.futures import ThreadPoolExecutor
 
@@ -45,8 +46,8 @@ from numba.extending import intrinsic
 
 from ._cache_key import KernelCache
 
-__all__ = ["kernel", "inline_kernel", "chunk_kernel", "parallel_kernel", "chunk_count", "on_threads", "set_threads",
-           "thread_count", "max_threads", "thread_id", "prefetch", "unsigned"]
+__all__ = ["kernel", "inline_kernel", "chunk_kernel", "parallel_kernel", "chunk_count", "on_threads",
+           "share_among_threads", "set_threads", "thread_count", "max_threads", "thread_id", "prefetch", "unsigned"]
 
 _COMMON = dict(nogil=True, error_model="numpy", fastmath=False)
 
@@ -139,6 +140,34 @@ def on_threads(run, n: int, min_chunk: int = 16384) -> list:
     if n_chunks == 1:
         return [run(0, n, 0)]
     return list(_thread_pool().map(lambda c: run(c * n // n_chunks, (c + 1) * n // n_chunks, c), range(n_chunks)))
+
+
+def share_among_threads(run, n: int, chunk: int) -> None:
+    """``run(first, end, row)`` over chunks of ``chunk`` items (the last one shorter), handed to
+    the threads of the pool as they free up, at most ``thread_count()`` at once; ``row`` is a
+    number below ``chunk_count(n, chunk)`` that no other chunk running at the same time has,
+    for per-thread scratch rows.
+
+    For passes whose work per item varies along the items, such as the rays of a camera,
+    whose lower half may hold the whole model: split in one chunk per thread, one thread
+    idles while the other finishes (camera rays on the full dragon, one thread: 0.066 s for
+    the upper half of the image, 0.092 s for the lower)."""
+    threads = chunk_count(n, chunk)
+    if threads == 1:
+        run(0, n, 0)
+        return
+    free_rows = queue.SimpleQueue()
+    for row in range(threads):
+        free_rows.put(row)
+
+    def run_chunk(first):
+        row = free_rows.get()
+        try:
+            run(first, min(first + chunk, n), row)
+        finally:
+            free_rows.put(row)
+
+    list(_thread_pool().map(run_chunk, range(0, n, chunk)))
 
 
 def set_threads(n: int) -> None:

@@ -6,7 +6,7 @@ import functools
 
 import numpy as np
 
-from .._jit import inline_kernel, on_threads
+from .._jit import inline_kernel, share_among_threads, thread_count
 from .._validate import as_positive_int
 from ..geometry.sphere import sphere_hit_coords
 from ..ray_order import coherent_batch, sorting_pays
@@ -17,13 +17,16 @@ from .grid.mailbox import MailboxPool
 from .point_queries import PointQueries, any_dask
 
 __all__ = ["Accelerator", "is_closer", "intersect_references", "store_hit", "settled_before", "walk_rays",
-           "EXIT_MARGIN", "RAY_CHUNK"]
+           "EXIT_MARGIN", "RAY_CHUNK", "CHUNKS_PER_THREAD"]
 
 # Relative margin by which a hit must lie before a cell's exit for the walk to stop there.
 EXIT_MARGIN = 1e-9
 
 RAY_CHUNK = 1024
-"""Fewest rays per thread in a ray walk (fewer rays run on one thread)."""
+"""Fewest rays in a chunk of a ray walk (fewer rays run on one thread)."""
+
+CHUNKS_PER_THREAD = 16
+"""Chunks per thread a batch of rays is cut into, so that the threads finish together."""
 
 LIST_SLOTS = (8, 64)
 """Hits per ray that the listing walks of :meth:`Accelerator.intersect_all` have room for: all
@@ -49,10 +52,11 @@ def settled_before(best_prim, best_t, t_exit):
 
 def walk_rays(walk, n_rays: int, *args) -> None:
     """Run a structure's ray walk, a :func:`rayaccel._jit.chunk_kernel` taking ``(ray_first,
-    ray_end, tid, *args)``, over ``n_rays`` rays in one chunk per thread (at least
-    :data:`RAY_CHUNK` rays each); ``tid`` picks the chunk's rows of per-thread stacks and
-    mailboxes."""
-    on_threads(lambda first, end, chunk: walk(first, end, chunk, *args), n_rays, RAY_CHUNK)
+    ray_end, tid, *args)``, over ``n_rays`` rays on threads: chunks of :data:`RAY_CHUNK` rays
+    or more, about :data:`CHUNKS_PER_THREAD` per thread, handed out as threads free up; ``tid``
+    picks the chunk's rows of per-thread stacks and mailboxes."""
+    chunk = max(RAY_CHUNK, -(-n_rays // (CHUNKS_PER_THREAD * thread_count())))
+    share_among_threads(lambda first, end, tid: walk(first, end, tid, *args), n_rays, chunk)
 
 class Accelerator(PointQueries):
     """A built acceleration structure over a scene.

@@ -1,0 +1,57 @@
+"""Work shared among threads: every item once, scratch rows never shared, results independent of threads."""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import numpy as np
+import pytest
+from conftest import assert_same_hits, random_rays
+
+import rayaccel as ra
+from rayaccel._jit import chunk_count, set_threads, share_among_threads, thread_count
+
+
+@pytest.fixture
+def two_threads():
+    before = thread_count()
+    set_threads(2)
+    yield
+    set_threads(before)
+
+
+@pytest.mark.parametrize("n, chunk", [(0, 4), (1, 4), (7, 4), (100, 7), (4096, 1024)])
+def test_every_item_once_and_rows_never_shared(two_threads, n, chunk):
+    seen = np.zeros(n, dtype=np.int64)
+    running = set()
+    lock = threading.Lock()
+    rows_used = set()
+
+    def run(first, end, row):
+        with lock:
+            assert row not in running
+            running.add(row)
+            rows_used.add(row)
+        time.sleep(0.001)
+        seen[first:end] += 1
+        with lock:
+            running.remove(row)
+
+    share_among_threads(run, n, chunk)
+    assert (seen == 1).all()
+    assert rows_used <= set(range(chunk_count(n, chunk)))
+
+
+def test_walks_give_the_same_hits_on_one_thread_and_in_many_chunks(small_dragon, two_threads):
+    origins, directions = random_rays(small_dragon, 50_000, seed=11)
+    for method in ("bvh-binned", "kdtree", "grid"):
+        accel = ra.build(small_dragon, method)
+        shared = accel.intersect(origins, directions, counters=True, reorder=False)
+        counts = accel.count(origins, directions, reorder=False)
+        set_threads(1)
+        alone = accel.intersect(origins, directions, counters=True, reorder=False)
+        np.testing.assert_array_equal(accel.count(origins, directions, reorder=False), counts)
+        set_threads(2)
+        assert_same_hits(alone, shared)
+        np.testing.assert_array_equal(alone.counters.tests, shared.counters.tests)
