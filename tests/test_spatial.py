@@ -264,6 +264,19 @@ def test_degenerate_scenes(method):
                      ra.build(flat, method).intersect(origins, directions))
 
 
+@pytest.mark.parametrize("method", ra.methods())
+def test_stats_of_a_scene_of_one_point(method):
+    """A root box of zero area: the surface-area figures take the limit of a shrinking box,
+    and a batch large enough to be sorted (which asks for the structure's size) is traced."""
+    point = ra.TriangleMesh(np.zeros((3, 3)), [[0, 1, 2]])
+    accel = ra.build(point, method)
+    stats = accel.stats()
+    assert stats["bytes"] == accel.nbytes > 0
+    assert np.isfinite(stats["expected_cost"])
+    origins = np.random.default_rng(0).normal(size=(40_000, 3))
+    assert (accel.intersect(origins, -origins).prim == -1).all()
+
+
 def test_forest_scenes_agree():
     scene = ra.load_scene("forest-small-chair")
     reference = ra.build(scene, "none")

@@ -45,11 +45,16 @@ def surface_area_stats(root_area, step_areas, leaf_areas, leaf_counts,
     ``root_area``: area of the root volume; ``step_areas``: areas of the nodes
     whose visit is a traversal step (inner nodes of a tree; every cell of a
     grid); ``leaf_areas``/``leaf_counts``: area and primitive count of each leaf or cell.
+    A root of zero area (every vertex on one point or line) gives the limit of a shrinking
+    box, in which a ray that enters the root enters every node.
     """
     root = float(root_area)
+    step_areas, leaf_areas = np.asarray(step_areas, float), np.asarray(leaf_areas, float)
+    if root == 0.0:
+        root, step_areas, leaf_areas = 1.0, np.ones_like(step_areas), np.ones_like(leaf_areas)
     steps = float(np.sum(step_areas)) / root
     leaves = float(np.sum(leaf_areas)) / root
-    tests = float(np.dot(np.asarray(leaf_areas, float), np.asarray(leaf_counts, float))) / root
+    tests = float(np.dot(leaf_areas, np.asarray(leaf_counts, float))) / root
     return {
         "expected_traversal_steps": steps,
         "expected_leaves_visited": leaves,

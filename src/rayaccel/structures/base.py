@@ -246,16 +246,9 @@ class Accelerator(PointQueries):
     def _ordered(self, rays, reorder):
         """The batch to trace: ``rays`` in a coherent order when asked for and worth it
         (:func:`rayaccel.ray_order.sorting_pays`)."""
-        if reorder and sorting_pays(len(rays.origins), self._structure_bytes()):
+        if reorder and sorting_pays(len(rays.origins), self.nbytes):
             return coherent_batch(rays, *self.scene_box)
         return rays
-
-    def _structure_bytes(self) -> int:
-        """``stats()["bytes"]``, computed once."""
-        size = self.__dict__.get("_bytes")
-        if size is None:
-            size = self.__dict__.setdefault("_bytes", int(self._structure_stats().get("bytes", 0)))
-        return size
 
     def _mailboxes_for(self, action) -> MailboxPool:
         """The mailboxes of a walk with ``action``: the structure's own for the closest hit (none
@@ -321,6 +314,11 @@ class Accelerator(PointQueries):
         return bounds
 
     def _trace(self, batch, any_hit, action, work) -> None:
+        raise NotImplementedError
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes of the arrays that queries read (``stats()["bytes"]``); each structure says which."""
         raise NotImplementedError
 
     def _structure_stats(self) -> dict:

@@ -84,11 +84,16 @@ class BruteForce(Accelerator):
         brute_force_winding_kernel(self.scene.kind, self.scene.geometry, points, out)
         return out
 
+    @property
+    def nbytes(self) -> int:
+        """Bytes of the arrays that queries read: the structure, the primitives and mailboxes."""
+        return int(self.scene.geometry.nbytes)
+
     def _structure_stats(self) -> dict:
         n = len(self.scene)
         return {
             "nodes": 1, "leaves": 1, "nonempty_leaves": 1, "max_depth": 0, "references": n,
-            "avg_prims_per_nonempty_leaf": float(n), "bytes": self.scene.geometry.nbytes,
+            "avg_prims_per_nonempty_leaf": float(n), "bytes": self.nbytes,
             "expected_traversal_steps": 0.0, "expected_leaves_visited": 1.0,
             "expected_intersections": float(n), "expected_cost": float(n),
         }

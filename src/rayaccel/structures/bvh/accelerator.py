@@ -191,6 +191,12 @@ class BoundingVolumeHierarchy(Accelerator):
         areas = self.volume_areas() if areas is None else areas
         return sah_cost(areas, self.bvh.node_count, self.options["traversal_cost"], self.options["intersection_cost"])
 
+    @property
+    def nbytes(self) -> int:
+        """Bytes of the arrays that queries read: the tree, its bounding volumes and the primitives."""
+        return int(self.bvh.traversal_bytes + self._volume_rows.nbytes + self.geometry.nbytes
+                   + (self.wide.nbytes if self.wide is not None else 0))
+
     def _structure_stats(self) -> dict:
         b = self.bvh
         leaf = b.node_count > 0
@@ -202,8 +208,7 @@ class BoundingVolumeHierarchy(Accelerator):
             "max_depth": self.max_depth,
             "references": int(b.node_count.sum()),
             "avg_prims_per_nonempty_leaf": float(b.node_count[leaf].mean()),
-            "bytes": (b.traversal_bytes + self._volume_rows.nbytes + self.geometry.nbytes
-                      + (self.wide.nbytes if self.wide is not None else 0)),
+            "bytes": self.nbytes,
         }
         sa = surface_area_stats(areas[0], step_areas=areas[~leaf], leaf_areas=areas[leaf],
                                 leaf_counts=b.node_count[leaf],

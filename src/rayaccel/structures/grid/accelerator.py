@@ -92,6 +92,11 @@ class UniformGrid(Accelerator):
         grid_nearest(g.lo, g.hi, g.res, g.cell_size, g.cell_first, g.cell_prims, self.scene.kind, self.scene.geometry,
                      points, limit_d2, out_d2, out_prim)
 
+    @property
+    def nbytes(self) -> int:
+        """Bytes of the arrays that queries read: the structure, the primitives and mailboxes."""
+        return int(self.grid.nbytes + self.scene.geometry.nbytes + self.mailboxes.nbytes)
+
     def _structure_stats(self) -> dict:
         g = self.grid
         counts = np.diff(g.cell_first)
@@ -105,7 +110,7 @@ class UniformGrid(Accelerator):
             "max_depth": 1,
             "references": int(g.cell_first[-1]),
             "avg_prims_per_nonempty_leaf": float(g.cell_first[-1]) / max(nonempty, 1),
-            "bytes": g.nbytes + self.scene.geometry.nbytes + self.mailboxes.nbytes,
+            "bytes": self.nbytes,
         }
         cell_areas = np.full(n_cells, box_area(np.zeros(3), g.cell_size))
         # Every cell entered is one DDA step, so cells count as traversal steps too.

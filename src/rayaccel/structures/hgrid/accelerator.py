@@ -79,6 +79,11 @@ class HierarchicalGrid(Accelerator):
                      self.scene.kind, self.scene.geometry, points, limit_d2, out_d2, out_prim,
                      nested=(h.cell_child, h.grid_lo, h.grid_res, h.grid_cell_size, h.grid_cell_base))
 
+    @property
+    def nbytes(self) -> int:
+        """Bytes of the arrays that queries read: the structure, the primitives and mailboxes."""
+        return int(self.hgrid.nbytes + self.scene.geometry.nbytes + self.mailboxes.nbytes)
+
     def _structure_stats(self) -> dict:
         h = self.hgrid
         cells_per_grid = h.grid_res.prod(axis=1)
@@ -96,7 +101,7 @@ class HierarchicalGrid(Accelerator):
             "max_depth": int(h.grid_level.max()) + 1,
             "references": int(h.cell_first[-1]),
             "avg_prims_per_nonempty_leaf": float(h.cell_first[-1]) / max(nonempty, 1),
-            "bytes": h.nbytes + self.scene.geometry.nbytes + self.mailboxes.nbytes,
+            "bytes": self.nbytes,
         }
         # every cell entered, at any level, is one DDA step
         result.update(surface_area_stats(box_area(h.lo, h.hi), step_areas=cell_area, leaf_areas=cell_area[leaf],

@@ -85,6 +85,11 @@ class GridBvh(Accelerator):
                      points, limit_d2, out_d2, out_prim, cell_root=h.cell_root,
                      forest=(h.node_box, h.node_first, h.node_count), bvh_depth=self.bvh_depth)
 
+    @property
+    def nbytes(self) -> int:
+        """Bytes of the arrays that queries read: the structure, the primitives and mailboxes."""
+        return int(self.hybrid.nbytes + self.scene.geometry.nbytes + self.mailboxes.nbytes)
+
     def _structure_stats(self) -> dict:
         h = self.hybrid
         counts = np.diff(h.cell_first)
@@ -112,7 +117,7 @@ class GridBvh(Accelerator):
             "max_depth": 1 + self.bvh_depth,
             "references": int(h.cell_first[-1]),
             "avg_prims_per_nonempty_leaf": float(leaf_counts.sum()) / max(nonempty, 1),
-            "bytes": h.nbytes + self.scene.geometry.nbytes + self.mailboxes.nbytes,
+            "bytes": self.nbytes,
         }
         steps = np.concatenate((np.full(n_cells, cell_area), node_areas))
         leaf_areas = np.concatenate((np.full(int((~in_bvh).sum()), cell_area), node_areas[leaf]))

@@ -221,13 +221,22 @@ class InstancedScene(Accelerator):
         return surface_area_stats(areas[0], step_areas=areas[~leaf], leaf_areas=areas[leaf],
                                   leaf_counts=count[leaf], traversal_cost=_TOP_TRAVERSAL_COST)
 
-    def _structure_stats(self) -> dict:
+    def _top_bytes(self) -> int:
         box, first, count, order = self.top
+        return int(box.nbytes + first.nbytes + count.nbytes + order.nbytes + self.instance_object.nbytes
+                   + self.transforms.nbytes + self.inverse.nbytes + self.world_lo.nbytes + self.world_hi.nbytes)
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes of the arrays that queries read: the top level and every object's structure."""
+        return self._top_bytes() + sum(obj.nbytes for obj in self.objects)
+
+    def _structure_stats(self) -> dict:
+        _, first, count, _ = self.top
         objects = [obj._structure_stats() for obj in self.objects]
         top = self._top_stats()
-        top_bytes = int(box.nbytes + first.nbytes + count.nbytes + order.nbytes + self.instance_object.nbytes
-                        + self.transforms.nbytes + self.inverse.nbytes + self.world_lo.nbytes + self.world_hi.nbytes)
-        object_bytes = sum(s["bytes"] for s in objects)
+        top_bytes = self._top_bytes()
+        object_bytes = self.nbytes - top_bytes
         leaves = sum(s["nonempty_leaves"] for s in objects)
         references = sum(s["references"] for s in objects)
         result = {
@@ -240,7 +249,7 @@ class InstancedScene(Accelerator):
             "max_depth": self.top_depth + 1 + max(s["max_depth"] for s in objects),
             "references": references,
             "avg_prims_per_nonempty_leaf": references / max(leaves, 1),
-            "bytes": top_bytes + object_bytes,
+            "bytes": self.nbytes,
             "top_nodes": len(first),
             "top_max_depth": self.top_depth,
             "top_bytes": top_bytes,

@@ -245,6 +245,11 @@ class KdTree(Accelerator):
                               self.scene.geometry, pad, points, limit_d2, np.empty((rows, depth), dtype=np.int32),
                               np.empty((rows, depth)), np.empty((rows, depth, 6)), out_d2, out_prim)
 
+    @property
+    def nbytes(self) -> int:
+        """Bytes of the arrays that queries read: the structure, the primitives and mailboxes."""
+        return int(self.kd.nbytes + self.scene.geometry.nbytes)
+
     def _structure_stats(self) -> dict:
         k = self.kd
         leaf = k.axis == LEAF
@@ -263,7 +268,7 @@ class KdTree(Accelerator):
             "leaves_at_leaf_size": int(np.count_nonzero(counts[~over_leaf_size])),
             "leaves_at_depth_limit": int(at_depth_limit.sum()),
             "leaves_by_cost": int(over_leaf_size.sum() - at_depth_limit.sum()),
-            "bytes": k.nbytes + self.scene.geometry.nbytes,
+            "bytes": self.nbytes,
         }
         sa = surface_area_stats(areas[0], step_areas=areas[~leaf], leaf_areas=areas[leaf], leaf_counts=counts,
                                 traversal_cost=self.options["traversal_cost"],

@@ -96,6 +96,11 @@ class Octree(Accelerator):
             frontier = children
         return np.concatenate((o.node_center - half, o.node_center + half), axis=1)
 
+    @property
+    def nbytes(self) -> int:
+        """Bytes of the arrays that queries read: the structure, the primitives and mailboxes."""
+        return int(self.tree.nbytes + self.scene.geometry.nbytes)
+
     def _structure_stats(self) -> dict:
         o = self.tree
         leaf = o.leaf
@@ -110,7 +115,7 @@ class Octree(Accelerator):
             "max_depth": self.max_depth,
             "references": len(o.leaf_prims),
             "avg_prims_per_nonempty_leaf": float(counts.sum()) / max(nonempty, 1),
-            "bytes": o.nbytes + self.scene.geometry.nbytes,
+            "bytes": self.nbytes,
         }
         result.update(surface_area_stats(areas[0], step_areas=areas[~leaf], leaf_areas=areas[leaf],
                                          leaf_counts=counts))
