@@ -49,7 +49,6 @@ def settled_before(best_prim, best_t, t_exit):
     return best_prim >= 0 and best_t < t_exit - EXIT_MARGIN * abs(t_exit)
 
 
-
 def walk_rays(walk, n_rays: int, *args) -> None:
     """Run a structure's ray walk, a :func:`rayaccel._jit.chunk_kernel` taking ``(ray_first,
     ray_end, tid, *args)``, over ``n_rays`` rays on threads: chunks of :data:`RAY_CHUNK` rays
@@ -57,6 +56,7 @@ def walk_rays(walk, n_rays: int, *args) -> None:
     picks the chunk's rows of per-thread stacks and mailboxes."""
     chunk = max(RAY_CHUNK, -(-n_rays // (CHUNKS_PER_THREAD * thread_count())))
     share_among_threads(lambda first, end, tid: walk(first, end, tid, *args), n_rays, chunk)
+
 
 class Accelerator(PointQueries):
     """A built acceleration structure over a scene.
