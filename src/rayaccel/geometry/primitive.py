@@ -14,18 +14,20 @@ __all__ = ["ray_setup", "intersect_prim", "cross_prim"]
 
 @inline_kernel
 def ray_setup(ox, oy, oz, dx, dy, dz):
-    """The per-ray constants :func:`intersect_prim` takes, computed once per ray."""
+    """The per-ray constants :func:`intersect_prim` takes, computed once per ray: the ray, the
+    axes and shear of :func:`.triangle.shear_setup`, and the origin's coordinates on those axes."""
     kx, ky, kz, sx, sy, sz = shear_setup(dx, dy, dz)
-    return (ox, oy, oz, dx, dy, dz, kx, ky, kz, sx, sy, sz)
+    origin = (ox, oy, oz)
+    return (ox, oy, oz, dx, dy, dz, kx, ky, kz, sx, sy, sz, origin[kx], origin[ky], origin[kz])
 
 
 @inline_kernel
 def intersect_prim(kind, geom, prim, ray, t_min, t_max):
     """``(t, u, v)`` of the ray's hit with primitive ``prim`` in ``[t_min, t_max]``,
     ``t = inf`` on a miss; ``u, v`` are triangle barycentrics (0 for spheres)."""
-    ox, oy, oz, dx, dy, dz, kx, ky, kz, sx, sy, sz = ray
+    ox, oy, oz, dx, dy, dz, kx, ky, kz, sx, sy, sz, okx, oky, okz = ray
     if kind == TRIANGLE:
-        return intersect_triangle(geom, prim, ox, oy, oz, kx, ky, kz, sx, sy, sz, t_min, t_max)
+        return intersect_triangle(geom, prim, okx, oky, okz, kx, ky, kz, sx, sy, sz, t_min, t_max)
     return intersect_sphere(geom, prim, ox, oy, oz, dx, dy, dz, t_min, t_max), 0.0, 0.0
 
 
@@ -36,9 +38,9 @@ def cross_prim(kind, geom, prim, ray, t_min, t_max):
     once, under the tie rule of :func:`.triangle.cross_triangle`, with barycentrics ``u, v``
     and ``side`` +1 where the ray leaves through its front, -1 through its back; a sphere up
     to twice (:func:`.sphere.cross_sphere`), ``u = v = 0``, ``side`` +1."""
-    ox, oy, oz, dx, dy, dz, kx, ky, kz, sx, sy, sz = ray
+    ox, oy, oz, dx, dy, dz, kx, ky, kz, sx, sy, sz, okx, oky, okz = ray
     if kind == TRIANGLE:
-        t, u, v, det = cross_triangle(geom, prim, ox, oy, oz, kx, ky, kz, sx, sy, sz, t_min, t_max)
+        t, u, v, det = cross_triangle(geom, prim, okx, oky, okz, kx, ky, kz, sx, sy, sz, t_min, t_max)
         return (0 if t == np.inf else 1), t, np.inf, u, v, (1 if det < 0.0 else -1)
     n, t_first, t_second = cross_sphere(geom, prim, ox, oy, oz, dx, dy, dz, t_min, t_max)
     return n, t_first, t_second, 0.0, 0.0, 1

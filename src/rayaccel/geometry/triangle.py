@@ -46,11 +46,10 @@ def shear_setup(dx, dy, dz):
 
 
 @inline_kernel
-def _sheared_vertices(geom, prim, ox, oy, oz, kx, ky, kz, sx, sy):
-    """The triangle's vertices relative to the ray origin, sheared so that the ray runs along
-    +z: ``(ax, ay, bx, by, cx, cy, az, bz, cz)``, z not yet scaled by ``sz``."""
-    origin = (ox, oy, oz)
-    okx, oky, okz = origin[kx], origin[ky], origin[kz]
+def _sheared_vertices(geom, prim, okx, oky, okz, kx, ky, kz, sx, sy):
+    """The triangle's vertices relative to the ray origin (``okx, oky, okz``: its coordinates
+    on the axes ``kx, ky, kz``), sheared so that the ray runs along +z: ``(ax, ay, bx, by, cx,
+    cy, az, bz, cz)``, z not yet scaled by ``sz``."""
     az_ = geom[prim, kz] - okz
     bz_ = geom[prim, 3 + kz] - okz
     cz_ = geom[prim, 6 + kz] - okz
@@ -97,10 +96,10 @@ def _edge_sign(e, px, py, qx, qy):
 
 
 @inline_kernel
-def _triangle_hit(geom, prim, ox, oy, oz, kx, ky, kz, sx, sy, sz, t_min, t_max, one_owner):
+def _triangle_hit(geom, prim, okx, oky, okz, kx, ky, kz, sx, sy, sz, t_min, t_max, one_owner):
     """The test behind :func:`intersect_triangle` (``one_owner`` False: zero edge functions count
     as inside) and :func:`cross_triangle` (True: they are resolved by :func:`_edge_sign`)."""
-    ax_, ay_, bx_, by_, cx_, cy_, az_, bz_, cz_ = _sheared_vertices(geom, prim, ox, oy, oz, kx, ky, kz, sx, sy)
+    ax_, ay_, bx_, by_, cx_, cy_, az_, bz_, cz_ = _sheared_vertices(geom, prim, okx, oky, okz, kx, ky, kz, sx, sy)
     # Each edge function is p.x*q.y - p.y*q.x over the edge (p, q) taken in
     # cyclic order, so a shared edge gives exactly the negated value.
     e0 = cx_ * by_ - cy_ * bx_
@@ -118,8 +117,10 @@ def _triangle_hit(geom, prim, ox, oy, oz, kx, ky, kz, sx, sy, sz, t_min, t_max, 
 
 
 @inline_kernel
-def intersect_triangle(geom, prim, ox, oy, oz, kx, ky, kz, sx, sy, sz, t_min, t_max):
-    """Hit of the ray with triangle ``geom[prim]`` (v0, v1, v2 as 9 floats).
+def intersect_triangle(geom, prim, okx, oky, okz, kx, ky, kz, sx, sy, sz, t_min, t_max):
+    """Hit of the ray with triangle ``geom[prim]`` (v0, v1, v2 as 9 floats); the ray is given by
+    :func:`shear_setup`'s axes and shear and by its origin's coordinates on those axes
+    (``okx, oky, okz``), all computed once per ray.
 
     Returns ``(t, u, v)`` with the hit point ``(1-u-v)*v0 + u*v1 + v*v2`` and
     ``t_min <= t <= t_max``, or ``(inf, 0, 0)`` when there is no such hit.
@@ -127,12 +128,12 @@ def intersect_triangle(geom, prim, ox, oy, oz, kx, ky, kz, sx, sy, sz, t_min, t_
     an edge or vertex hits every triangle there (see :func:`cross_triangle` for
     the test that gives each crossing to one triangle).
     """
-    t, u, v, _ = _triangle_hit(geom, prim, ox, oy, oz, kx, ky, kz, sx, sy, sz, t_min, t_max, False)
+    t, u, v, _ = _triangle_hit(geom, prim, okx, oky, okz, kx, ky, kz, sx, sy, sz, t_min, t_max, False)
     return t, u, v
 
 
 @inline_kernel
-def cross_triangle(geom, prim, ox, oy, oz, kx, ky, kz, sx, sy, sz, t_min, t_max):
+def cross_triangle(geom, prim, okx, oky, okz, kx, ky, kz, sx, sy, sz, t_min, t_max):
     """:func:`intersect_triangle` with each crossing given to exactly one triangle.
 
     Where an edge function is exactly zero (the ray passes through an edge or a
@@ -151,4 +152,4 @@ def cross_triangle(geom, prim, ox, oy, oz, kx, ky, kz, sx, sy, sz, t_min, t_max)
     Returns ``(t, u, v, det)``: ``det < 0`` where the ray leaves through the triangle's
     front, so that the crossings signed by it sum to the winding number.
     """
-    return _triangle_hit(geom, prim, ox, oy, oz, kx, ky, kz, sx, sy, sz, t_min, t_max, True)
+    return _triangle_hit(geom, prim, okx, oky, okz, kx, ky, kz, sx, sy, sz, t_min, t_max, True)
