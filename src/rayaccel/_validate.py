@@ -39,7 +39,7 @@ def _ray_defects(origins, directions, first, end):
     for i in range(first, end):
         ox, oy, oz = origins[i, 0], origins[i, 1], origins[i, 2]
         dx, dy, dz = directions[i, 0], directions[i, 1], directions[i, 2]
-        # x * 0 is 0 for a finite x and NaN for an infinite or NaN one: no branches, so LLVM vectorises
+        # x * 0 is 0 for a finite x and NaN for an infinite or NaN one, without a branch
         bad_origins += ox * 0.0 + oy * 0.0 + oz * 0.0 != 0.0
         bad_directions += dx * 0.0 + dy * 0.0 + dz * 0.0 != 0.0
         zero_directions += (dx == 0.0) & (dy == 0.0) & (dz == 0.0)

@@ -30,22 +30,20 @@ def primitive_extent(kind, geometry, p, k):
 
 @kernel
 def _triangle_boxes(geometry, first, end, lo, hi, box):
-    """Boxes of triangles ``first:end`` into ``lo``, ``hi``; their union into ``box`` (6,)."""
+    """Boxes of triangles ``first:end`` into ``lo``, ``hi``; ``box`` (6,) grown to their union."""
     _boxes(TRIANGLE, geometry, first, end, lo, hi, box)
 
 
 @kernel
 def _sphere_boxes(geometry, first, end, lo, hi, box):
-    """Boxes of spheres ``first:end`` into ``lo``, ``hi``; their union into ``box`` (6,)."""
+    """Boxes of spheres ``first:end`` into ``lo``, ``hi``; ``box`` (6,) grown to their union."""
     _boxes(SPHERE, geometry, first, end, lo, hi, box)
 
 
 @inline_kernel
 def _boxes(kind, geometry, first, end, lo, hi, box):
-    """The pass of the two kernels above, for primitives of ``kind``."""
-    for k in range(3):
-        box[k] = np.inf
-        box[k + 3] = -np.inf
+    """The pass of the two kernels above, for primitives of ``kind``; ``box`` comes in empty
+    (``inf`` lows, ``-inf`` highs) or holding boxes it grows to cover."""
     for p in range(first, end):
         for k in range(3):
             lo[p, k], hi[p, k] = primitive_extent(kind, geometry, p, k)
