@@ -96,12 +96,12 @@ def test_structural_invariants(small_dragon, method):
 
 
 def test_wide_nodes_hold_every_leaf_once_inside_their_boxes(small_dragon):
-    from rayaccel.structures.bvh.wide import UNUSED
+    from rayaccel.structures.bvh.wide import COUNT, LINK, UNUSED, WIDTH
 
     accel = ra.build(small_dragon, "bvh-binned", max_leaf_size=2)
     b, records = accel.bvh, accel.wide
     links = records.view(np.int32)
-    child, count = links[:, 24:28], links[:, 28:32]
+    child, count = links[:, LINK:LINK + WIDTH], links[:, COUNT:COUNT + WIDTH]
     inner = count == 0
     assert sorted(child[inner].tolist()) == list(range(1, len(records)))
     leaves = count > 0
@@ -111,8 +111,8 @@ def test_wide_nodes_hold_every_leaf_once_inside_their_boxes(small_dragon):
     vertices = accel.geometry.reshape(-1, 3, 3)
     for node, c in zip(*np.nonzero(leaves)):
         points = vertices[child[node, c]:child[node, c] + count[node, c]].reshape(-1, 3)
-        assert (points >= records[node, [c, 4 + c, 8 + c]]).all()
-        assert (points <= records[node, [12 + c, 16 + c, 20 + c]]).all()
+        assert (points >= records[node, [c, WIDTH + c, 2 * WIDTH + c]]).all()
+        assert (points <= records[node, [3 * WIDTH + c, 4 * WIDTH + c, 5 * WIDTH + c]]).all()
     assert ((count >= 0) | (count == UNUSED)).all()
     assert (inner | leaves).sum(axis=1).min() >= 2
 
@@ -176,7 +176,7 @@ def test_bad_bvh_options(small_dragon):
     with pytest.raises(TypeError):
         ra.build(small_dragon, "bvh-lbvh", bins=8)
     with pytest.raises(ValueError, match="width"):
-        ra.build(small_dragon, "bvh-binned", width=8)
+        ra.build(small_dragon, "bvh-binned", width=4)
 
 
 def test_counters(small_dragon):
@@ -209,36 +209,51 @@ def test_random_scenes_property(n, seed, method, volume, leaf):
 @given(seed=st.integers(0, 2**32 - 1), zero_axes=st.sets(st.integers(0, 2)), on_plane=st.booleans(),
        scale=st.sampled_from([1e-20, 1e-3, 1.0, 1e7, 1e20]))
 def test_vector_child_test_equals_the_scalar_slab_test(seed, zero_axes, on_plane, scale):
-    """The four-lane slab test of the wide layout culls exactly what the scalar test culls, for
-    zero direction components of either sign, origins on slab planes, and any magnitude."""
+    """The eight-lane slab test of the wide layout culls exactly what the scalar test culls, for
+    zero direction components of either sign, origins on slab planes, and any magnitude; its mask
+    has bit ``c`` set exactly where child ``c`` is entered."""
     from numba import njit
 
     from rayaccel.structures.bvh.traverse import enter_box
+    from rayaccel.structures.bvh.wide import WIDTH
     from rayaccel.structures.bvh.wide_slab import enter_children
 
     @njit(error_model="numpy")
     def both(records, boxes, node, o, d, t_min, t_max):
         inv = (1.0 / d[0], 1.0 / d[1], 1.0 / d[2])
         near = (0 if inv[0] >= 0.0 else 3, 1 if inv[1] >= 0.0 else 4, 2 if inv[2] >= 0.0 else 5)
-        vector = enter_children(records, node, near[0], near[1], near[2], (o[0], o[1], o[2]), inv, t_min, t_max)
+        vector = np.empty(WIDTH)
+        mask = enter_children(records, node, near[0], near[1], near[2], (o[0], o[1], o[2]), inv, t_min, t_max,
+                              vector)
         scalar = [enter_box(boxes, c, o[0], o[1], o[2], inv[0], inv[1], inv[2], near[0], near[1], near[2], t_min,
-                            t_max) for c in range(4)]
-        return vector, scalar
+                            t_max) for c in range(WIDTH)]
+        return vector, scalar, mask
 
     rng = np.random.default_rng(seed)
-    lo = (rng.uniform(-1, 1, (4, 3)) * scale).astype(np.float32)
-    hi = lo + (rng.uniform(0, 1, (4, 3)) * scale).astype(np.float32)
-    records = np.zeros((1, 32), dtype=np.float32)
-    records[0, :12] = lo.T.ravel()
-    records[0, 12:24] = hi.T.ravel()
+    lo = (rng.uniform(-1, 1, (WIDTH, 3)) * scale).astype(np.float32)
+    hi = lo + (rng.uniform(0, 1, (WIDTH, 3)) * scale).astype(np.float32)
+    records = np.zeros((1, 8 * WIDTH), dtype=np.float32)
+    records[0, :3 * WIDTH] = lo.T.ravel()
+    records[0, 3 * WIDTH:6 * WIDTH] = hi.T.ravel()
     boxes = np.hstack([lo, hi]).astype(np.float64)
     origin = rng.uniform(-2, 2, 3) * scale
     direction = rng.normal(size=3)
     for axis in zero_axes:
         direction[axis] = rng.choice([0.0, -0.0])
         if on_plane:
-            origin[axis] = lo[rng.integers(4), axis]
+            origin[axis] = lo[rng.integers(WIDTH), axis]
     if not direction.any():
         direction[0] = 1.0
-    vector, scalar = both(records, boxes, 0, origin, direction, 0.0, np.inf)
-    np.testing.assert_array_equal(np.array(vector), np.array(scalar))
+    vector, scalar, mask = both(records, boxes, 0, origin, direction, 0.0, np.inf)
+    np.testing.assert_array_equal(vector, np.array(scalar))
+    assert mask == sum(1 << c for c in range(WIDTH) if vector[c] != np.inf)
+
+
+def test_highest_bit():
+    from numba import njit
+
+    from rayaccel.structures.bvh.wide_slab import highest_bit
+
+    top = njit(lambda mask: highest_bit(mask))
+    for mask in (1, 2, 3, 0b10110000, 255, 1 << 40):
+        assert top(mask) == mask.bit_length() - 1

@@ -144,7 +144,7 @@ def _crafts(arrays):
 
 
 def _wide_inner(arrays, k):
-    """The ``k``-th slot of the four-wide collapse that holds an inner binary node."""
+    """The ``k``-th slot of the wide collapse that holds an inner binary node."""
     slots = arrays["bvh.wide_slots"]
     inner = np.argwhere((slots >= 0) & (arrays["bvh.node_count"][np.maximum(slots, 0)] == 0))
     return tuple(inner[k])
@@ -167,6 +167,23 @@ def test_a_file_without_the_wide_collapse_derives_it(saved, small_dragon, tmp_pa
     (tmp_path / "saved.npz").write_bytes(saved)
     origins, directions = random_rays(small_dragon, 500, seed=3)
     _assert_identical(ra.load_accelerator(path).intersect(origins, directions),
+                      ra.load_accelerator(tmp_path / "saved.npz").intersect(origins, directions))
+
+
+def test_a_file_of_the_four_wide_layout_loads_eight_wide(saved, small_dragon, tmp_path):
+    """Files written before the eight-wide layout carry ``width=4`` and a collapse four slots wide:
+    the option becomes 8 and the collapse is derived again."""
+    header, arrays = _read(saved)
+    header["state"]["options"]["width"] = 4
+    slots = arrays["bvh.wide_slots"]
+    arrays = {**arrays, "bvh.wide_slots": slots[:, :4].copy(), "bvh.wide_children": slots[:, :4].copy()}
+    path = tmp_path / "four_wide.npz"
+    _write(path, header, arrays)
+    (tmp_path / "saved.npz").write_bytes(saved)
+    loaded = ra.load_accelerator(path)
+    assert loaded.options["width"] == 8
+    origins, directions = random_rays(small_dragon, 500, seed=4)
+    _assert_identical(loaded.intersect(origins, directions),
                       ra.load_accelerator(tmp_path / "saved.npz").intersect(origins, directions))
 
 

@@ -109,7 +109,7 @@ def write_report(rows: list[BuilderRow], out_dir, side: int) -> tuple[Path, Path
              for r in rows]
     lines = [f"# Which BVH is better? Every builder, {side}x{side} primary and as many incoherent rays", "",
              "SAH cost: expected cost per ray that hits the root, C_t = 2, C_i = 1 (the defaults of the box BVHs). "
-             "Nodes (four-wide, as walked) and tests per ray: "
+             "Nodes (eight-wide, as walked) and tests per ray: "
              "measured on the primary rays, closest hit. Throughput: median of 3, all threads.", ""]
     lines += markdown_table(headers, table, align_right_from=2)
     path = out_dir / "bvh.md"

@@ -11,9 +11,9 @@ class (and its subclasses):
   per-thread mailboxes, stack depths -- with the same functions the build uses.
 
 Only canonical arrays are stored: derived layouts (the BVH's packed and
-four-wide records, the sorted geometry) are rebuilt on load, so a file stays
+wide records, the sorted geometry) are rebuilt on load, so a file stays
 valid when a traversal layout changes. One derived array is stored as well,
-because deriving it is most of a load's time: the four-wide BVH's choice of
+because deriving it is most of a load's time: the wide BVH's choice of
 binary nodes per wide node (:func:`..structures.bvh.wide.wide_tree`; full dragon:
 27 ms of random reads over the whole tree). It is
 optional: a file without it gets it derived again.
@@ -190,29 +190,34 @@ def _save_bvh(accel):
 
 
 def _wide_tree(arrays, node_count, max_depth):
-    """The saved collapse of the checked binary tree into the four-wide one, checked: slots
+    """The saved collapse of the checked binary tree into the wide one, checked: slots
     hold binary nodes or -1 (slot 0 always used), inner slots link forward to wide nodes
     with one parent each, and the wide tree is no deeper than the binary one (whose depth
-    sizes the traversal stack). None when the file has none."""
-    if "bvh.wide_slots" not in arrays:
+    sizes the traversal stack). None when the file has none, or one of another width (a
+    file from before the eight-wide layout), which is then derived again."""
+    if "bvh.wide_slots" not in arrays or np.ndim(arrays["bvh.wide_slots"]) != 2 \
+            or np.shape(arrays["bvh.wide_slots"])[1] != WIDTH:
         return None
     slots = c.array(arrays, "bvh.wide_slots", np.int32, (None, WIDTH))
     children = c.array(arrays, "bvh.wide_children", np.int32, (len(slots), WIDTH))
-    c.require(len(slots) >= 1, "the four-wide BVH has no node")
+    c.require(len(slots) >= 1, "the wide BVH has no node")
     c.index_range("bvh.wide_slots", slots, -1, len(node_count))
-    c.require(bool((slots[:, 0] >= 0).all()), "a four-wide BVH node has no first child")
+    c.require(bool((slots[:, 0] >= 0).all()), "a wide BVH node has no first child")
     inner = slots >= 0
     inner[inner] = node_count[slots[inner]] == 0
     parents = np.nonzero(inner)[0]
-    c.single_parents("the four-wide BVH", parents, children[inner].astype(np.int64), len(slots))
-    c.require(wide_depth(slots, children, node_count) <= max_depth, "the four-wide BVH is deeper than its binary tree")
+    c.single_parents("the wide BVH", parents, children[inner].astype(np.int64), len(slots))
+    c.require(wide_depth(slots, children, node_count) <= max_depth, "the wide BVH is deeper than its binary tree")
     return slots, children
 
 
 def _load_bvh(accel, meta, arrays):
     options = accel.options
     c.require(options.get("bounds") in _BOUNDS, "option bounds is not one the BVH knows")
-    c.require(options["bounds"] != "aabb" or options.get("width") in (2, 4), "option width must be 2 or 4")
+    c.require(options["bounds"] != "aabb" or options.get("width") in (2, 4, WIDTH),
+              f"option width must be 2 or {WIDTH}")
+    if options["bounds"] == "aabb" and options["width"] == 4:
+        options["width"] = WIDTH
     c.require(options["bounds"] != "sphere" or options.get("sphere_fit") in ("primitives", "children"),
               "option sphere_fit must be 'primitives' or 'children'")
     pad = meta.get("pad")
@@ -227,7 +232,7 @@ def _load_bvh(accel, meta, arrays):
     accel.max_depth = int(depth.max())
     wide_tree = _wide_tree(arrays, count, accel.max_depth)
     if wide_tree is not None:
-        c.require(options["bounds"] == "aabb" and options["width"] == 4, "a four-wide tree saved with a binary BVH")
+        c.require(options["bounds"] == "aabb" and options["width"] == WIDTH, "a wide tree saved with a binary BVH")
         accel._wide_tree = wide_tree
     accel._pack_for_traversal(box, first, count, order, pad, same_tree=wide_tree is not None)
 

@@ -23,7 +23,7 @@ from .split_morton import morton_codes
 from .traverse import BOX, KDOP, SPHERE_VOLUME, bvh_trace_kernel
 from .traverse_wide import wide_trace_kernel
 from .volumes import fit_kdops, fit_spheres
-from .wide import wide_records, wide_tree
+from .wide import WIDTH, wide_records, wide_tree
 
 __all__ = ["BVH_CLASSES"]
 
@@ -52,9 +52,9 @@ class BoundingVolumeHierarchy(Accelerator):
         builders to decide splits and leaves, and by ``stats()``. A binary
         step tests two child volumes and fetches a node pair; measured on the
         full dragon, C_t = 3 against C_t = C_i: build 1.54 -> 1.33 s, primary
-        rays 4.4 -> 5.3 Mrays/s. The four-wide traversal tests four boxes per
-        prefetched fetch, so a step costs less against a primitive test: there
-        C_t = 2 against 3 gave incoherent rays +8 to +11 % in two interleaved
+        rays 4.4 -> 5.3 Mrays/s. A wide traversal tests several boxes per
+        prefetched fetch, so a step costs less against a primitive test: on the
+        four-wide layout C_t = 2 against 3 gave incoherent rays +8 to +11 % in two interleaved
         runs (primary -5 to +6 %, any hit +2 to +7 %, within the noise).
     bounds : "aabb", "sphere" or "kdop"
         The node volume the traversal tests: boxes (cheapest test), spheres
@@ -63,19 +63,20 @@ class BoundingVolumeHierarchy(Accelerator):
     sphere_fit : "primitives" or "children"
         With ``bounds="sphere"``: Ritter's sphere over all primitives below the
         node, or the exact sphere around the two child spheres.
-    width : 2 or 4, default 4
-        With ``bounds="aabb"``, traverse the binary tree collapsed into four-wide
-        nodes (:mod:`rayaccel.structures.bvh.wide`), half as many dependent
+    width : 2 or 8, default 8
+        With ``bounds="aabb"``, traverse the binary tree collapsed into eight-wide
+        nodes (:mod:`rayaccel.structures.bvh.wide`), about a third as many dependent
         memory fetches per ray; 2 walks the binary tree. Statistics always
         describe the binary tree; the node counter counts the nodes walked.
+        (Files saved with the former ``width=4`` load as ``width=8``.)
     """
 
     default_leaf_size = 4
 
     def __init__(self, scene, *, max_leaf_size=None, traversal_cost=None, intersection_cost=1.0, bounds="aabb",
-                 sphere_fit="primitives", width=4, **builder_options):
+                 sphere_fit="primitives", width=WIDTH, **builder_options):
         max_leaf_size = self.default_leaf_size if max_leaf_size is None else max_leaf_size
-        wide = bounds == "aabb" and width == 4
+        wide = bounds == "aabb" and width == WIDTH
         if traversal_cost is None:
             traversal_cost = 2.0 if wide else 3.0
         max_leaf_size = check_number("max_leaf_size", max_leaf_size, integer=True)
@@ -85,8 +86,8 @@ class BoundingVolumeHierarchy(Accelerator):
             raise ValueError(f"bounds must be one of {tuple(_BOUNDS)}, got {bounds!r}")
         if sphere_fit not in ("primitives", "children"):
             raise ValueError(f"sphere_fit must be 'primitives' or 'children', got {sphere_fit!r}")
-        if width not in (2, 4) or isinstance(width, bool):
-            raise ValueError(f"width must be 2 or 4, got {width!r}")
+        if width not in (2, WIDTH) or isinstance(width, bool):
+            raise ValueError(f"width must be 2 or {WIDTH}, got {width!r}")
         options = {"max_leaf_size": max_leaf_size, "traversal_cost": traversal_cost,
                    "intersection_cost": intersection_cost, "bounds": bounds, **builder_options}
         if bounds == "sphere":
@@ -111,13 +112,13 @@ class BoundingVolumeHierarchy(Accelerator):
         """Set :attr:`bvh` to the binary tree (boxes already grown by ``pad``) and derive from it
         and :attr:`geometry` every array the traversal reads. The build, :meth:`refit` and
         :func:`rayaccel.load_accelerator` all go through here; ``same_tree`` (a refit, or a load
-        that read the collapse from the file) keeps the four-wide collapse in ``_wide_tree`` and
+        that read the collapse from the file) keeps the wide collapse in ``_wide_tree`` and
         packs only its boxes."""
         self.pad = pad
         self._winding_cache = None
         self._caps_cache = None
         bounds = self.options["bounds"]
-        wide = bounds == "aabb" and self.options["width"] == 4
+        wide = bounds == "aabb" and self.options["width"] == WIDTH
         records = pack_nodes(box[:1], first[:1], count[:1]) if wide else pack_nodes(box, first, count)
         self.bvh = BvhArrays(box, first, count, order, records)
         if bounds == "kdop":
@@ -149,12 +150,13 @@ class BoundingVolumeHierarchy(Accelerator):
         b = self.bvh
         rows = numba.config.NUMBA_NUM_THREADS
         if self.wide is not None:
-            depth = 3 * self.max_depth + 8
+            depth = (WIDTH - 1) * self.max_depth + 2
             links = self.wide.view(np.int32)
             stack_link, stack_count = np.empty((rows, depth), dtype=np.int32), np.empty((rows, depth), dtype=np.int32)
             stack_t = np.empty((rows, depth))
             walk_rays(wide_trace_kernel, len(batch.origins), b.node_records, self.wide, links, b.prim_order,
-                      self.scene.kind, self.geometry, *batch, any_hit, stack_link, stack_count, stack_t, action, work)
+                      self.scene.kind, self.geometry, *batch, any_hit, stack_link, stack_count, stack_t,
+                      np.empty((rows, WIDTH)), action, work)
             return
         stack_node = np.empty((rows, self.max_depth + 2), dtype=np.int32)
         stack_t = np.empty((rows, self.max_depth + 2))

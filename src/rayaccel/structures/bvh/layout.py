@@ -21,7 +21,7 @@ and ``first``, ``count`` stored bit for bit as int32 in the last two columns
 (read them through ``node_records.view(np.int32)``). Record 1 is padding and
 node k >= 1 is record k + 1 (child links shifted to match), so that the two
 children of a node share one 64-byte cache line; see :func:`node_rows`, which
-lays out the sphere and k-DOP volumes the same way. A BVH walked four-wide
+lays out the sphere and k-DOP volumes the same way. A BVH walked eight-wide
 (:mod:`.wide`) keeps only the root's record here (rows 0 and 1): the box a ray
 must enter before the walk starts.
 

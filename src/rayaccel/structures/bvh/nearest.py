@@ -9,7 +9,7 @@ visited, whose box lies farther than the best primitive found so far is
 skipped. Leaves call the shared action
 :func:`rayaccel.structures.point_actions.nearest_in_refs`. The walk reads the
 binary layout of :mod:`.layout` in float64 (``node_box``), also for BVHs whose
-rays walk the four-wide records, and the grid-BVH hybrid walks the BVHs of
+rays walk the eight-wide records, and the grid-BVH hybrid walks the BVHs of
 its dense cells with the same function.
 """
 

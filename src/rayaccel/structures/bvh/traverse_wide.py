@@ -1,25 +1,28 @@
-"""Stack traversal of the four-wide BVH (:mod:`.wide`), closest hit and any hit.
+"""Stack traversal of the eight-wide BVH (:mod:`.wide`), closest hit and any hit.
 
-At a wide node the ray tests the four child boxes at once
-(:func:`.wide_slab.enter_children`, vector instructions) and counts the ones it
-enters before its best hit. A single one is descended into directly. Of two or
-more, a closest-hit walk orders them by entry distance (a five-comparator sorting
-network on registers), pushes all but the nearest, farthest first, and descends into
-the nearest; an any-hit walk, which ends at whatever hit it finds first, takes them
-in the tree's order unsorted, as Embree's any-hit traversal does, and so do the walks
-that count or list hits, which prune nothing (or, keeping the nearest ``max_hits``,
-little; counting the dragon's camera rays: -25 % CPU time). Measured as CPU
-time of one thread against always sorting: skipping the sort for a single child
-gave +5-13 % on the full dragon and +15-30 % on camera rays of the forest; the
-unsorted any-hit walk +18 % (incoherent) to +96 % (camera rays) on the forest and
--4 to -7 % on the dragon. Leaf children are pushed like inner ones (the nearest too)
-and their primitives tested when popped, so a closest-hit walk meets primitives in
-front-to-back order. Whatever is pushed is prefetched, so its memory arrives while
-the ray works on nearer children (measured on the dragon's incoherent rays: +20-25 %
-against the binary walk, where the wide layout alone gave +5-14 %). An entry popped
-beyond the best hit found since it was pushed is skipped. A ray that misses the whole
-tree's box stops there, before testing four boxes. The slab test computes exactly
-what :func:`.traverse.enter_box` computes, with the same NaN-safe comparisons.
+At a wide node the ray tests the eight child boxes at once
+(:func:`.wide_slab.enter_children`, vector instructions), which gives the mask of
+the children it enters before its best hit. A single inner one is descended into
+directly. Otherwise each entered child goes on the stack, its entry distance with
+it; a closest-hit walk inserts each where it keeps the stack's top part ordered by
+entry distance (an insertion sort of the few children entered, nearest on top, as
+Embree's BVH8 traversal sorts its hits), then pops the nearest. An any-hit walk,
+which ends at whatever hit it finds first, takes them in the tree's order unsorted,
+as Embree's any-hit traversal does, and so do the walks that count or list hits,
+which prune nothing (or, keeping the nearest ``max_hits``, little; counting the
+dragon's camera rays: -25 % CPU time). Measured as CPU time of one thread on the
+four-wide layout against always sorting: skipping the sort for a single child gave
++5-13 % on the full dragon and +15-30 % on camera rays of the forest; the unsorted
+any-hit walk +18 % (incoherent) to +96 % (camera rays) on the forest and -4 to -7 %
+on the dragon. Leaf children are pushed like inner ones and their primitives tested
+when popped, so a closest-hit walk meets primitives in front-to-back order.
+Whatever is pushed is prefetched, so its memory arrives while the ray works on
+nearer children (measured on the dragon's incoherent rays: +20-25 % against the
+binary walk, where a four-wide layout alone gave +5-14 %). An entry popped beyond
+the best hit found since it was pushed is skipped. A ray that misses the whole
+tree's box stops there, before testing any child box. The slab test computes
+exactly what :func:`.traverse.enter_box` computes, with the same NaN-safe
+comparisons.
 """
 
 from __future__ import annotations
@@ -30,46 +33,48 @@ from ..._jit import chunk_kernel, inline_kernel, prefetch
 from ...geometry.primitive import ray_setup
 from ..actions import NEAREST, finish_ray, visit_prim
 from .traverse import enter_box
-from .wide_slab import enter_children
+from .wide import COUNT, LINK
+from .wide_slab import enter_children, highest_bit
 
 __all__ = ["wide_trace_kernel"]
 
 
 @inline_kernel
-def _in_order(ta, la, ca, tb, lb, cb):
-    if tb < ta:
-        return tb, lb, cb, ta, la, ca
-    return ta, la, ca, tb, lb, cb
-
-
-@inline_kernel
-def _push(records, geom, stack_link, stack_count, stack_t, tid, sp, t, link, count):
-    """Push a child the ray enters at ``t`` (none when ``t`` is inf) and prefetch what popping
-    it will read: its record's two cache lines, or its first primitive."""
-    if t == np.inf:
-        return sp
+def _push(records, geom, stack_link, stack_count, stack_t, tid, base, sp, t, link, count, nearest_first):
+    """Push a child the ray enters at ``t`` on the stack, whose entries from ``base`` on are this
+    node's children, below those nearer than it when ``nearest_first``; prefetch what popping it
+    will read: its record's four cache lines, or its first primitive."""
     if count == 0:
-        prefetch(records, link, 0)
-        prefetch(records, link, 16)
+        for line in range(0, 64, 16):
+            prefetch(records, link, line)
     else:
         prefetch(geom, link, 0)
-    stack_link[tid, sp] = link
-    stack_count[tid, sp] = count
-    stack_t[tid, sp] = t
+    slot = sp
+    if nearest_first:
+        while slot > base and stack_t[tid, slot - 1] < t:
+            stack_link[tid, slot] = stack_link[tid, slot - 1]
+            stack_count[tid, slot] = stack_count[tid, slot - 1]
+            stack_t[tid, slot] = stack_t[tid, slot - 1]
+            slot -= 1
+    stack_link[tid, slot] = link
+    stack_count[tid, slot] = count
+    stack_t[tid, slot] = t
     return sp + 1
 
 
 @chunk_kernel
 def wide_trace_kernel(ray_first, ray_end, tid, root_box, records, links, prim_order, kind, geom, origins, directions,
-                      t_min, t_max, hit_slot, any_hit, stack_link, stack_count, stack_t, action, work):
-    """Trace rays ``ray_first`` to ``ray_end - 1`` through the wide BVH, keeping their stacks in row
-    ``tid`` (one chunk of :func:`rayaccel._jit.on_threads`); ``geom`` is in leaf order (``geom[prim_order]``),
+                      t_min, t_max, hit_slot, any_hit, stack_link, stack_count, stack_t, entry, action, work):
+    """Trace rays ``ray_first`` to ``ray_end - 1`` through the wide BVH, keeping their stacks and the
+    entry distances of a node's children in row ``tid`` (one chunk of
+    :func:`rayaccel._jit.share_among_threads`); ``geom`` is in leaf order (``geom[prim_order]``),
     ``links`` is ``records`` seen as int32, and row 0 of ``root_box`` (a binary node record)
-    the whole tree's box, which a ray must enter before the root's four children are
+    the whole tree's box, which a ray must enter before the root's children are
     tested. Each primitive of a leaf gets the leaf action (:mod:`..actions`). Counters:
     wide nodes and leaves visited (a leaf counts as a node too), primitive tests."""
     count_work = work.shape[0] > 0
     nearest_first = not any_hit and action.mode == NEAREST
+    child_entry = entry[tid]
     for i in range(ray_first, ray_end):
         ox, oy, oz = origins[i, 0], origins[i, 1], origins[i, 2]
         dx, dy, dz = directions[i, 0], directions[i, 1], directions[i, 2]
@@ -94,34 +99,30 @@ def wide_trace_kernel(ray_first, ray_end, tid, root_box, records, links, prim_or
             node = -1
         while node >= 0:
             n_nodes += 1
-            t0, t1, t2, t3 = enter_children(records, node, near_x, near_y, near_z, origin, inv_dir, ray_t_min, best_t)
-            l0, l1, l2, l3 = links[node, 24], links[node, 25], links[node, 26], links[node, 27]
-            c0, c1, c2, c3 = links[node, 28], links[node, 29], links[node, 30], links[node, 31]
-            entered = (t0 != np.inf) + (t1 != np.inf) + (t2 != np.inf) + (t3 != np.inf)
-            if entered > 0 and t0 == np.inf:
-                if t1 != np.inf:
-                    t0, l0, c0, t1, l1, c1 = t1, l1, c1, t0, l0, c0
-                elif t2 != np.inf:
-                    t0, l0, c0, t2, l2, c2 = t2, l2, c2, t0, l0, c0
-                else:
-                    t0, l0, c0, t3, l3, c3 = t3, l3, c3, t0, l0, c0
-            if entered > 1:
-                if nearest_first:
-                    t0, l0, c0, t1, l1, c1 = _in_order(t0, l0, c0, t1, l1, c1)
-                    t2, l2, c2, t3, l3, c3 = _in_order(t2, l2, c2, t3, l3, c3)
-                    t0, l0, c0, t2, l2, c2 = _in_order(t0, l0, c0, t2, l2, c2)
-                    t1, l1, c1, t3, l3, c3 = _in_order(t1, l1, c1, t3, l3, c3)
-                    t1, l1, c1, t2, l2, c2 = _in_order(t1, l1, c1, t2, l2, c2)
-                sp = _push(records, geom, stack_link, stack_count, stack_t, tid, sp, t3, l3, c3)
-                sp = _push(records, geom, stack_link, stack_count, stack_t, tid, sp, t2, l2, c2)
-                sp = _push(records, geom, stack_link, stack_count, stack_t, tid, sp, t1, l1, c1)
+            entered = enter_children(records, node, near_x, near_y, near_z, origin, inv_dir, ray_t_min, best_t,
+                                     child_entry)
+            if entered != 0:
+                c = highest_bit(entered)
+                entered ^= 1 << c
+                if entered == 0 and links[node, COUNT + c] == 0:
+                    node = links[node, LINK + c]
+                    continue
+                base = sp
+                while True:
+                    if entered == 0 and not nearest_first and links[node, COUNT + c] == 0:
+                        node = links[node, LINK + c]
+                        break
+                    sp = _push(records, geom, stack_link, stack_count, stack_t, tid, base, sp, child_entry[c],
+                               links[node, LINK + c], links[node, COUNT + c], nearest_first)
+                    if entered == 0:
+                        node = -1
+                        break
+                    c = highest_bit(entered)
+                    entered ^= 1 << c
+                if node >= 0:
+                    continue
             node = -1
-            if entered > 0:
-                if c0 == 0:
-                    node = l0
-                else:
-                    sp = _push(records, geom, stack_link, stack_count, stack_t, tid, sp, t0, l0, c0)
-            while node < 0 and sp > 0:
+            while sp > 0:
                 sp -= 1
                 if stack_t[tid, sp] > best_t:
                     continue

@@ -1,4 +1,4 @@
-"""Slab test of a wide node's four child boxes at once, in LLVM vector instructions.
+"""Slab test of a wide node's eight child boxes at once, in LLVM vector instructions.
 
 The slab test is Kay & Kajiya's ("Ray Tracing Complex Scenes", SIGGRAPH
 1986), with the near face of each axis chosen once per ray (pbrt's
@@ -6,18 +6,21 @@ The slab test is Kay & Kajiya's ("Ray Tracing Complex Scenes", SIGGRAPH
 ``0 * inf`` (an origin on a slab plane, a zero direction component) never
 replaces the running entry or exit distance.
 
-A wide record stores each box component for its four children side by side
-(:mod:`.wide`), so one 16-byte load fetches, say, ``lo_x`` of all four. Written
-as scalar code, Numba leaves the four children's tests scalar: LLVM's SLP
+A wide record stores each box component for its eight children side by side
+(:mod:`.wide`), so one 32-byte load fetches, say, ``lo_x`` of all eight. Written
+as scalar code, Numba leaves the children's tests scalar: LLVM's SLP
 vectoriser, which would merge them, is off in Numba by default
 (``NUMBA_SLP_VECTORIZE=0``), and a library must not switch it on for its
 users' code. :func:`enter_children` therefore emits the vector IR itself: per
-axis, two loads of four float32 components, widened to four float64 lanes,
-then subtract, multiply and select on all four children at once (on AVX2, as
+axis, two loads of eight float32 components, widened to eight float64 lanes,
+then subtract, multiply and select on all eight children at once (on AVX2, as
 ``inspect_asm()`` shows: ``vcvtps2pd``, ``vsubpd``, ``vmulpd``, ``vmaxpd`` and
-``vminpd`` on ``ymm`` registers, and one ``vblendvpd`` for the misses). The
-arithmetic is exactly the scalar test's, lane by lane, in float64, so it culls
-exactly the same nodes.
+``vminpd`` on pairs of ``ymm`` registers). The arithmetic is exactly the
+scalar test's, lane by lane, in float64, so it culls exactly the same nodes.
+It returns the entered children as the bits of an integer, which the
+traversal walks with :func:`highest_bit`, as Embree's does with its
+``movemask``; computing the same test in float32 lanes instead was not faster
+(four-wide nodes, full dragon, one thread: x0.98 to x1.03).
 """
 
 from __future__ import annotations
@@ -27,40 +30,41 @@ from numba import types
 from numba.core import cgutils
 from numba.extending import intrinsic
 
-__all__ = ["enter_children"]
+from .wide import WIDTH
 
-_LANES = 4
+__all__ = ["enter_children", "highest_bit"]
 
 
 @intrinsic
-def enter_children(typingctx, records, node, near_x, near_y, near_z, origin, inv_dir, t_min, t_max):
-    """``(t0, t1, t2, t3)``: the distance at which the ray enters each child box of wide
-    ``node`` within ``[t_min, t_max]``, ``inf`` where it misses. ``records`` is the
-    (n, 32) float32 wide layout, ``near_*`` the column block (0-5) of each axis's
-    near face, ``origin`` and ``inv_dir`` float64 triples."""
-    signature = types.UniTuple(types.float64, _LANES)(records, node, near_x, near_y, near_z, origin, inv_dir, t_min,
-                                                      t_max)
+def enter_children(typingctx, records, node, near_x, near_y, near_z, origin, inv_dir, t_min, t_max, entry):
+    """Test the ray against the child boxes of wide ``node``: writes into ``entry[c]`` the
+    distance at which it enters child ``c`` within ``[t_min, t_max]``, ``inf`` where it misses,
+    and returns the mask of the children it enters (bit ``c`` for child ``c``). ``records`` is
+    the (n, 64) float32 wide layout, ``near_*`` the column block (0-5) of each axis's near face,
+    ``origin`` and ``inv_dir`` float64 triples, ``entry`` a contiguous float64 array of
+    ``WIDTH`` or more."""
+    signature = types.int64(records, node, near_x, near_y, near_z, origin, inv_dir, t_min, t_max, entry)
 
     def codegen(context, builder, sig, args):
         records_type = sig.args[0]
-        array, node_index, *nears, origin_value, inv_value, enter_limit, exit_limit = args
+        array, node_index, *nears, origin_value, inv_value, enter_limit, exit_limit, entry_array = args
         view = context.make_array(records_type)(context, builder, array)
         row = cgutils.get_item_pointer(context, builder, records_type, view,
                                        [context.cast(builder, node_index, sig.args[1], types.intp),
                                         context.get_constant(types.intp, 0)])
-        floats = ir.VectorType(ir.FloatType(), _LANES)
-        doubles = ir.VectorType(ir.DoubleType(), _LANES)
+        floats = ir.VectorType(ir.FloatType(), WIDTH)
+        doubles = ir.VectorType(ir.DoubleType(), WIDTH)
         intp = context.get_value_type(types.intp)
 
         def splat(value):
             vector = ir.Constant(doubles, ir.Undefined)
-            for lane in range(_LANES):
+            for lane in range(WIDTH):
                 vector = builder.insert_element(vector, value, ir.IntType(32)(lane))
             return vector
 
         def component(block):
-            pointer = builder.gep(row, [builder.mul(block, ir.Constant(intp, _LANES))])
-            return builder.fpext(builder.load(builder.bitcast(pointer, floats.as_pointer()), align=16), doubles)
+            pointer = builder.gep(row, [builder.mul(block, ir.Constant(intp, WIDTH))])
+            return builder.fpext(builder.load(builder.bitcast(pointer, floats.as_pointer()), align=32), doubles)
 
         enter = splat(enter_limit)
         exit_ = splat(exit_limit)
@@ -73,9 +77,26 @@ def enter_children(typingctx, records, node, near_x, near_y, near_z, origin, inv
             far = builder.fmul(builder.fsub(component(far_block), o), inv)
             enter = builder.select(builder.fcmp_ordered(">", near, enter), near, enter)
             exit_ = builder.select(builder.fcmp_ordered("<", far, exit_), far, exit_)
-        missed = ir.Constant(doubles, [float("inf")] * _LANES)
-        entry = builder.select(builder.fcmp_ordered("<=", enter, exit_), enter, missed)
-        lanes = [builder.extract_element(entry, ir.IntType(32)(lane)) for lane in range(_LANES)]
-        return context.make_tuple(builder, sig.return_type, lanes)
+        entered = builder.fcmp_ordered("<=", enter, exit_)
+        missed = ir.Constant(doubles, [float("inf")] * WIDTH)
+        entry_view = context.make_array(sig.args[9])(context, builder, entry_array)
+        builder.store(builder.select(entered, enter, missed), builder.bitcast(entry_view.data, doubles.as_pointer()),
+                      align=8)
+        return builder.zext(builder.bitcast(entered, ir.IntType(WIDTH)), ir.IntType(64))
+
+    return signature, codegen
+
+
+@intrinsic
+def highest_bit(typingctx, mask):
+    """The index of the highest set bit of ``mask`` (an int64 other than 0): one ``lzcnt``."""
+    signature = types.int64(mask)
+
+    def codegen(context, builder, sig, args):
+        int64 = ir.IntType(64)
+        count_zeros = cgutils.get_or_insert_function(builder.module, ir.FunctionType(int64, [int64, ir.IntType(1)]),
+                                                     "llvm.ctlz.i64")
+        mask_value = context.cast(builder, args[0], sig.args[0], types.int64)
+        return builder.sub(int64(63), builder.call(count_zeros, [mask_value, ir.IntType(1)(1)]))
 
     return signature, codegen
