@@ -10,12 +10,16 @@ import rayaccel as ra
 from rayaccel import ray_order
 from rayaccel.ray_order import MIN_RAYS, coherent_batch, last_level_cache_bytes, sorting_pays
 from rayaccel.rays import Hits, prepare_rays
+from rayaccel.structures.bvh.accelerator import BoundingVolumeHierarchy
 
 
 @pytest.fixture(autouse=True)
 def sort_every_structure(monkeypatch):
-    """The test scenes fit in any cache, which would leave their rays as given."""
+    """The test scenes fit in any cache, which would leave their rays as given, and the
+    eight-wide BVH walk traces as given whatever the size: here every walk is sorted, so that
+    each is checked to write its hits through the batch's ``hit_slot``."""
     monkeypatch.setattr(ray_order, "last_level_cache_bytes", lambda: 0)
+    monkeypatch.setattr(BoundingVolumeHierarchy, "_walk_gains_from_sorting", property(lambda self: True))
 
 
 @pytest.fixture(scope="module")
@@ -75,8 +79,16 @@ def test_coherent_batches_are_left_alone(small_dragon):
     assert coherent_batch(batch, bounds.scene_lo, bounds.scene_hi) is batch
 
 
+def test_the_eight_wide_bvh_traces_rays_as_given(small_dragon, incoherent_batch, monkeypatch):
+    monkeypatch.undo()
+    monkeypatch.setattr(ray_order, "last_level_cache_bytes", lambda: 0)
+    batch = prepare_rays(*incoherent_batch)
+    assert ra.build(small_dragon, "bvh-binned")._ordered(batch, True) is batch
+    assert ra.build(small_dragon, "bvh-binned", width=2)._ordered(batch, True) is not batch
+
+
 def test_structures_within_half_the_cache_trace_rays_as_given(small_dragon, incoherent_batch, monkeypatch):
-    accel = ra.build(small_dragon, "bvh-binned")
+    accel = ra.build(small_dragon, "kdtree")
     batch = prepare_rays(*incoherent_batch)
     size = accel.stats()["bytes"]
     monkeypatch.setattr(ray_order, "last_level_cache_bytes", lambda: 2 * size)

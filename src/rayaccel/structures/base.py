@@ -98,7 +98,8 @@ class Accelerator(PointQueries):
         reorder : bool
             Trace a batch of ``ray_order.MIN_RAYS`` rays or more in a coherent
             order when the structure is larger than half the last-level cache
-            (:mod:`rayaccel.ray_order`); the results are in the given order either
+            and its walk gains from it (:mod:`rayaccel.ray_order`; not the
+            eight-wide BVH's); the results are in the given order either
             way. ``False`` traces the rays in the given order.
 
         Any input a ``dask.array`` makes every field of the result a lazy Dask array
@@ -246,9 +247,15 @@ class Accelerator(PointQueries):
     def _ordered(self, rays, reorder):
         """The batch to trace: ``rays`` in a coherent order when asked for and worth it
         (:func:`rayaccel.ray_order.sorting_pays`)."""
-        if reorder and sorting_pays(len(rays.origins), self.nbytes):
+        if reorder and self._walk_gains_from_sorting and sorting_pays(len(rays.origins), self.nbytes):
             return coherent_batch(rays, *self.scene_box)
         return rays
+
+    @property
+    def _walk_gains_from_sorting(self) -> bool:
+        """Whether the structure's walk traces a large incoherent batch faster sorted (see
+        :mod:`rayaccel.ray_order`); structures whose walk does not say otherwise."""
+        return True
 
     def _mailboxes_for(self, action) -> MailboxPool:
         """The mailboxes of a walk with ``action``: the structure's own for the closest hit (none
