@@ -30,6 +30,7 @@ floats in Numba.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import queue
 import warnings
@@ -40,6 +41,8 @@ import numpy as np
 from llvmlite import ir
 from numba import types
 from numba.core import cgutils
+from numba.core import ir as numba_ir
+from numba.core.compiler_lock import global_compiler_lock
 from numba.core.dispatcher import Dispatcher
 from numba.core.errors import NumbaPerformanceWarning
 from numba.extending import intrinsic
@@ -57,11 +60,44 @@ warnings.filterwarnings("ignore", message=r"(?s).*'parallel=True' was specified 
                         category=NumbaPerformanceWarning)
 
 
+def _same_scope(scope, memo):
+    return scope
+
+
+@contextlib.contextmanager
+def _scopes_shared_by_copies():
+    """Numba inlines a function at its IR level (``inline="always"``) by deep-copying the
+    function's IR block by block, and every block's copy copies the function's whole variable
+    scope again, which the inlining then only reads (to rename its variables into the
+    caller's scope): the copies cost blocks x variables. Within this context, held under
+    Numba's compiler lock so that no other compilation sees it, a copied block shares the
+    original scope instead. Measured, first ``intersect`` of bvh-binned on an empty cache:
+    13.9 -> 5.3 s of CPU, the deep copies having been 80 % of a profile of it. Numba
+    versions whose scopes copy themselves are left alone."""
+    with global_compiler_lock:
+        if "__deepcopy__" in vars(numba_ir.Scope):
+            yield
+            return
+        numba_ir.Scope.__deepcopy__ = _same_scope
+        try:
+            yield
+        finally:
+            del numba_ir.Scope.__deepcopy__
+
+
 def _cached(dispatcher):
     """Cache ``dispatcher`` on disk under a stamp of its file and every file it imports
-    (:mod:`rayaccel._cache_key`), so that an edited callee in another file recompiles it."""
+    (:mod:`rayaccel._cache_key`), so that an edited callee in another file recompiles it,
+    and compile it with the inlined functions' scopes shared (:func:`_scopes_shared_by_copies`)."""
     if isinstance(dispatcher, Dispatcher):
         dispatcher._cache = KernelCache(dispatcher.py_func)
+        compile_signature = dispatcher.compile
+
+        def compile_with_shared_scopes(signature):
+            with _scopes_shared_by_copies():
+                return compile_signature(signature)
+
+        dispatcher.compile = compile_with_shared_scopes
     return dispatcher
 
 

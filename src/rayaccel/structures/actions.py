@@ -57,7 +57,8 @@ from .._jit import inline_kernel
 from ..geometry.primitive import cross_prim, intersect_prim
 
 __all__ = ["NEAREST", "COUNT", "LIST", "WINDING", "Action", "nearest_hit", "hit_count", "hit_list", "signed_crossings",
-           "is_closer", "store_hit", "visit_prim", "finish_ray", "intersect_references"]
+           "is_closer", "store_hit", "visit_prim", "visit_prim_in_mode", "finish_ray", "finish_ray_in_mode",
+           "intersect_references"]
 
 NEAREST = 0
 COUNT = 1
@@ -165,7 +166,16 @@ def visit_prim(action, row, kind, geom, k, prim, ray, t_min, best_t, best_prim, 
     """Test primitive ``prim`` (row ``k`` of ``geom``) for the ray of output row ``row`` and apply
     the action; returns ``(best_t, best_prim, best_u, best_v, stop)``, ``stop`` when the walk
     can end at once (an any-hit query that found one)."""
-    if action.mode == NEAREST:
+    return visit_prim_in_mode(action.mode, action, row, kind, geom, k, prim, ray, t_min, best_t, best_prim, best_u,
+                              best_v, any_hit)
+
+
+@inline_kernel
+def visit_prim_in_mode(mode, action, row, kind, geom, k, prim, ray, t_min, best_t, best_prim, best_u, best_v, any_hit):
+    """:func:`visit_prim` with the action's mode given apart: a walk that passes a constant
+    (``NEAREST``) has the other modes' code pruned before Numba types it, so that the
+    closest-hit kernel compiles none of the crossing tests, lists and winding counts."""
+    if mode == NEAREST:
         t, u, v = intersect_prim(kind, geom, k, ray, t_min, best_t)
         if is_closer(t, prim, best_t, best_prim):
             return t, prim, u, v, any_hit
@@ -173,10 +183,10 @@ def visit_prim(action, row, kind, geom, k, prim, ray, t_min, best_t, best_prim, 
     n, t_first, t_second, u, v, side = cross_prim(kind, geom, k, ray, t_min, best_t)
     if n == 0:
         return best_t, best_prim, best_u, best_v, False
-    if action.mode == COUNT:
+    if mode == COUNT:
         action.count[row] += n
         return best_t, best_prim, best_u, best_v, False
-    if action.mode == WINDING:
+    if mode == WINDING:
         half_turns = side if t_first == 0.0 else 2 * side
         action.count[row] += half_turns
         return best_t, best_prim, best_u, best_v, False
@@ -193,7 +203,13 @@ def visit_prim(action, row, kind, geom, k, prim, ray, t_min, best_t, best_prim, 
 def finish_ray(action, row, best_t, best_prim, best_u, best_v):
     """Write what the walk kept for the ray of output row ``row``: the closest hit (the other
     modes write as they go)."""
-    if action.mode == NEAREST and best_prim >= 0:
+    finish_ray_in_mode(action.mode, action, row, best_t, best_prim, best_u, best_v)
+
+
+@inline_kernel
+def finish_ray_in_mode(mode, action, row, best_t, best_prim, best_u, best_v):
+    """:func:`finish_ray` with the action's mode given apart (see :func:`visit_prim_in_mode`)."""
+    if mode == NEAREST and best_prim >= 0:
         action.t[row] = best_t
         action.prim[row] = best_prim
         action.u[row] = best_u

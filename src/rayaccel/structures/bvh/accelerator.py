@@ -11,6 +11,7 @@ from ..._jit import thread_count
 from ..._validate import check_number
 from ...geometry.kdop import KDOP_NORMALS, kdop_surface_areas
 from ...stats import surface_area_stats
+from ..actions import NEAREST
 from ..base import Accelerator, walk_rays
 from .build_ploc import build_ploc
 from .build_top_down import MORTON, OBJECT_MEDIAN, SAH_BINNED, SAH_SWEEP, SPATIAL_MEDIAN, build_top_down
@@ -21,7 +22,7 @@ from .nodes import box_surface_areas, node_depths, sah_cost
 from .refit import refit_bvh
 from .split_morton import morton_codes
 from .traverse import BOX, KDOP, SPHERE_VOLUME, bvh_trace_kernel
-from .traverse_wide import wide_trace_kernel
+from .traverse_wide import wide_crossings_kernel, wide_nearest_kernel
 from .volumes import fit_kdops, fit_spheres
 from .wide import WIDTH, wide_records, wide_tree
 
@@ -160,7 +161,8 @@ class BoundingVolumeHierarchy(Accelerator):
             links = self.wide.view(np.int32)
             stack_link, stack_count = np.empty((rows, depth), dtype=np.int32), np.empty((rows, depth), dtype=np.int32)
             stack_t = np.empty((rows, depth))
-            walk_rays(wide_trace_kernel, len(batch.origins), b.node_records, self.wide, links, b.prim_order,
+            walk = wide_nearest_kernel if action.mode == NEAREST else wide_crossings_kernel
+            walk_rays(walk, len(batch.origins), b.node_records, self.wide, links, b.prim_order,
                       self.scene.kind, self.geometry, *batch, any_hit, stack_link, stack_count, stack_t,
                       np.empty((rows, WIDTH)), action, work)
             return
