@@ -44,7 +44,12 @@ the kd-tree's closest-hit speed. By passing the mode to the walk on its own and 
 literal with ``numba.literally``, so that dead-branch pruning drops the other modes: the
 four-wide walk's first closest-hit call then compiled for 7.2 s with an integer mode before
 asking for the literal, 25.5 s with it (21.9 s for the whole walk before), and the integer
-attempt came back at the next call from Python (7.9 s for the first ``occluded``).
+attempt came back at the next call from Python (7.9 s for the first ``occluded``). The way
+kept: a thin kernel passes the constant ``NEAREST`` to the walk, inlined at the IR level, which
+hands it to :func:`visit_prim_in_mode` and :func:`finish_ray_in_mode`; Numba's dead-branch
+pruning, which runs after that inlining, drops the other modes before typing. The eight-wide
+walk's closest-hit kernel compiles in 5.4 s against 9.8 s for the walk of every mode
+(bunny, empty cache, CPU).
 """
 
 from __future__ import annotations
