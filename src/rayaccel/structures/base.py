@@ -254,7 +254,7 @@ class Accelerator(PointQueries):
     @property
     def _walk_gains_from_sorting(self) -> bool:
         """Whether the structure's walk traces a large incoherent batch faster sorted (see
-        :mod:`rayaccel.ray_order`); structures whose walk does not say otherwise."""
+        :mod:`rayaccel.ray_order`): true unless a structure says otherwise."""
         return True
 
     def _mailboxes_for(self, action) -> MailboxPool:

@@ -66,8 +66,9 @@ class BoundingVolumeHierarchy(Accelerator):
         node, or the exact sphere around the two child spheres.
     width : 2 or 8, default 8
         With ``bounds="aabb"``, traverse the binary tree collapsed into eight-wide
-        nodes (:mod:`rayaccel.structures.bvh.wide`), about a third as many dependent
-        memory fetches per ray; 2 walks the binary tree. Statistics always
+        nodes (:mod:`rayaccel.structures.bvh.wide`): full dragon, 6.8 nodes and leaves
+        visited per incoherent ray against the binary walk's 17.3 (camera rays 2.9
+        against 7.4); 2 walks the binary tree. Statistics always
         describe the binary tree; the node counter counts the nodes walked.
         (Files saved with the former ``width=4`` load as ``width=8``.)
     """
@@ -149,8 +150,8 @@ class BoundingVolumeHierarchy(Accelerator):
 
     @property
     def _walk_gains_from_sorting(self) -> bool:
-        """The eight-wide walk traces incoherent rays slower sorted, even on a structure ten times
-        the last-level cache (:mod:`rayaccel.ray_order`); the other walks are sorted."""
+        """The eight-wide walk traces incoherent rays slower sorted, even on a structure eleven times
+        the last-level cache (:mod:`rayaccel.ray_order`); the binary walks are sorted."""
         return self.wide is None
 
     def _trace(self, batch, any_hit, action, work):
