@@ -23,8 +23,7 @@ def test_scopes_are_shared_only_inside_the_context():
 
 
 def test_a_users_inlined_function_compiles_as_before_after_rayaccel_compiled(bunny):
-    accel = ra.build(bunny, "bvh-binned")
-    assert (accel.intersect(np.zeros((4, 3)), np.ones((4, 3))).prim >= -1).all()
+    ra.build(bunny, "bvh-binned").intersect(np.zeros((4, 3)), np.ones((4, 3)))
     assert "__deepcopy__" not in vars(ir.Scope)
 
     @numba.njit(inline="always")

@@ -33,7 +33,7 @@ time as given 0.965 for bvh-binned, 0.80 for the kd-tree.
 Since the BVH is walked eight-wide it loses to the sort wherever measured, so its
 accelerators trace their rays as given (``_walk_gains_from_sorting``). Nine
 interleaved rounds, 2 threads, 2**20 incoherent rays, time sorted over time as given
-(closest / any hit): full dragon, 88 MiB, bvh-binned 1.05 / 1.08 and kd-tree 0.85 / 0.82;
+(closest / any hit): full dragon, bvh-binned (88 MiB) 1.05 / 1.08 and kd-tree (91 MiB) 0.85 / 0.82;
 the full dragon subdivided once (3.5 million triangles, 353 MiB, seven rounds),
 bvh-binned 1.09 / 1.08.
 """

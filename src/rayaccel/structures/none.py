@@ -86,7 +86,7 @@ class BruteForce(Accelerator):
 
     @property
     def nbytes(self) -> int:
-        """Bytes of the arrays that queries read: the structure, the primitives and mailboxes."""
+        """Bytes of the arrays that queries read: the primitives."""
         return int(self.scene.geometry.nbytes)
 
     def _structure_stats(self) -> dict:

@@ -71,7 +71,10 @@ def _walk(ray_first, ray_end, tid, root_box, records, links, prim_order, kind, g
     ``links`` is ``records`` seen as int32, and row 0 of ``root_box`` (a binary node record)
     the whole tree's box, which a ray must enter before the root's children are
     tested. Each primitive of a leaf gets the leaf action (:mod:`..actions`). Counters:
-    wide nodes and leaves visited (a leaf counts as a node too), primitive tests."""
+    wide nodes and leaves visited (a leaf counts as a node too), primitive tests. The single
+    entered inner child is descended into by its own test before the push loop: folded into the
+    loop's test of the last child, the walk ran at 0.81 (dragon camera rays, closest hit) and
+    0.83 (forest camera rays, any hit) of this one's speed on one thread."""
     count_work = work.shape[0] > 0
     nearest_first = not any_hit and mode == NEAREST
     child_entry = entry[tid]

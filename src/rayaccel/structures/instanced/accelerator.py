@@ -236,7 +236,7 @@ class InstancedScene(Accelerator):
         objects = [obj._structure_stats() for obj in self.objects]
         top = self._top_stats()
         top_bytes = self._top_bytes()
-        object_bytes = self.nbytes - top_bytes
+        object_bytes = sum(s["bytes"] for s in objects)
         leaves = sum(s["nonempty_leaves"] for s in objects)
         references = sum(s["references"] for s in objects)
         result = {
@@ -249,7 +249,7 @@ class InstancedScene(Accelerator):
             "max_depth": self.top_depth + 1 + max(s["max_depth"] for s in objects),
             "references": references,
             "avg_prims_per_nonempty_leaf": references / max(leaves, 1),
-            "bytes": self.nbytes,
+            "bytes": top_bytes + object_bytes,
             "top_nodes": len(first),
             "top_max_depth": self.top_depth,
             "top_bytes": top_bytes,

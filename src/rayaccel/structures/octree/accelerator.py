@@ -98,7 +98,7 @@ class Octree(Accelerator):
 
     @property
     def nbytes(self) -> int:
-        """Bytes of the arrays that queries read: the structure, the primitives and mailboxes."""
+        """Bytes of the arrays that queries read: the tree and the primitives."""
         return int(self.tree.nbytes + self.scene.geometry.nbytes)
 
     def _structure_stats(self) -> dict:
