@@ -4,7 +4,7 @@ install:
 	python3 -m pip install -e ".[test]"
 
 test:
-	python3 -m pytest
+	python3 -m pytest -n auto --dist loadfile
 
 demo:
 	rayaccel demo
