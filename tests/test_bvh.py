@@ -267,3 +267,34 @@ def test_highest_bit():
     top = njit(lambda mask: highest_bit(mask))
     for mask in (1, 2, 3, 0b10110000, 255, 1 << 40):
         assert top(mask) == mask.bit_length() - 1
+
+
+@pytest.mark.parametrize(("scene_name", "layout"), [("small_dragon", "rows"), ("bunny", "indexed")])
+def test_leaf_triangles_take_the_smallest_exact_layout(scene_name, layout, request):
+    """The dragon's PLY holds float32 vertices, so its leaf triangles are float32 rows; the bunny's
+    OBJ does not, so its are vertex indices into vertices renumbered by first use. Both hold the
+    scene's corners exactly, and the structure stays within Embree's 85 bytes per triangle."""
+    scene = request.getfixturevalue(scene_name)
+    accel = ra.build(scene, "bvh-binned")
+    expected = scene.geometry[accel.bvh.prim_order]
+    if layout == "rows":
+        assert accel.geometry.dtype == np.float32 and accel.geometry.shape == expected.shape
+        corners = accel.geometry.astype(np.float64)
+    else:
+        corner_ids, leaf_vertices = accel.geometry
+        assert corner_ids.dtype == np.int32 and leaf_vertices.dtype == np.float64
+        _, first_use = np.unique(corner_ids.ravel(), return_index=True)
+        assert (np.diff(first_use) > 0).all() and len(leaf_vertices) <= len(scene.vertices)
+        corners = leaf_vertices[corner_ids].reshape(-1, 9)
+    np.testing.assert_array_equal(corners, expected)
+    assert accel.stats()["bytes"] / len(scene) < 85
+
+
+def test_refit_to_vertices_float32_cannot_hold_changes_the_layout(small_dragon):
+    accel = ra.build(small_dragon, "bvh-binned")
+    moved = small_dragon.vertices + 1e-3 / 3
+    accel.refit(moved)
+    assert isinstance(accel.geometry, tuple)
+    moved_mesh = ra.TriangleMesh(moved, small_dragon.faces)
+    origins, directions = random_rays(moved_mesh, 3000)
+    assert_same_hits(ra.build(moved_mesh, "none").intersect(origins, directions), accel.intersect(origins, directions))

@@ -24,7 +24,7 @@ import numpy as np
 
 from ._validate import as_index_triples, as_points, as_positive_int
 from .geometry.bounds import primitive_bounds, sphere_centroids, triangle_centroids
-from .geometry.gather import gather_triangles
+from .geometry.gather import float32_exact, gather_triangles
 from .geometry.kinds import SPHERE, TRIANGLE
 
 __all__ = [
@@ -85,13 +85,18 @@ class TriangleMesh:
         that reorders them gathers its own copy instead)."""
         return np.ascontiguousarray(self.vertices[self.faces].reshape(-1, 9))
 
-    def gather(self, order: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
-        """``geometry[order]`` without gathering ``geometry`` first (``order`` must index faces),
-        written into ``out`` (len(order), 9) when given."""
-        if out is None:
-            out = np.empty((len(order), 9))
-        gather_triangles(self.vertices, self.faces, np.ascontiguousarray(order, dtype=np.int64), out)
-        return out
+    @functools.cached_property
+    def float32_exact(self) -> bool:
+        """Whether every vertex coordinate is a float32 number (as read from binary PLY or STL)."""
+        return float32_exact(self.vertices)
+
+    def gather(self, order: np.ndarray, out=None):
+        """The faces ``order`` in that order, in the smallest exact layout of
+        :mod:`rayaccel.geometry.gather`: (n, 9) float32 rows when :attr:`float32_exact`, else
+        vertex indices into the vertices renumbered by first use. Rows go into ``out`` when it
+        is rows of that shape."""
+        return gather_triangles(self.vertices, self.faces, np.ascontiguousarray(order, dtype=np.int64),
+                                self.float32_exact, out)
 
     def __len__(self) -> int:
         return len(self.faces)

@@ -14,6 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 from .._jit import inline_kernel, kernel, on_threads, thread_count
+from .gather import corner, sphere_rows
 from .kinds import SPHERE, TRIANGLE
 
 __all__ = ["primitive_extent", "primitive_bounds", "triangle_centroids", "sphere_centroids"]
@@ -23,8 +24,9 @@ __all__ = ["primitive_extent", "primitive_bounds", "triangle_centroids", "sphere
 def primitive_extent(kind, geometry, p, k):
     """``(lo, hi)`` of primitive ``p`` on axis ``k``."""
     if kind == SPHERE:
-        return geometry[p, k] - geometry[p, 3], geometry[p, k] + geometry[p, 3]
-    a, b, c = geometry[p, k], geometry[p, 3 + k], geometry[p, 6 + k]
+        spheres = sphere_rows(geometry)
+        return spheres[p, k] - spheres[p, 3], spheres[p, k] + spheres[p, 3]
+    a, b, c = corner(geometry, p, 0, k), corner(geometry, p, 1, k), corner(geometry, p, 2, k)
     return min(a, b, c), max(a, b, c)
 
 

@@ -21,6 +21,7 @@ from __future__ import annotations
 import math
 
 from .._jit import inline_kernel, kernel
+from .gather import corner, sphere_rows
 from .kinds import TRIANGLE
 
 __all__ = ["closest_on_triangle", "closest_on_sphere", "closest_on_prim", "distance2_to_prim"]
@@ -128,9 +129,12 @@ def closest_on_sphere(cx, cy, cz, r, px, py, pz):
 def closest_on_prim(kind, geom, row, px, py, pz):
     """``(d2, x, y, z, u, v)`` for primitive row ``row`` of ``geom``, whatever the scene's kind."""
     if kind == TRIANGLE:
-        return closest_on_triangle(geom[row, 0], geom[row, 1], geom[row, 2], geom[row, 3], geom[row, 4],
-                                   geom[row, 5], geom[row, 6], geom[row, 7], geom[row, 8], px, py, pz)
-    return closest_on_sphere(geom[row, 0], geom[row, 1], geom[row, 2], geom[row, 3], px, py, pz)
+        return closest_on_triangle(corner(geom, row, 0, 0), corner(geom, row, 0, 1), corner(geom, row, 0, 2),
+                                   corner(geom, row, 1, 0), corner(geom, row, 1, 1), corner(geom, row, 1, 2),
+                                   corner(geom, row, 2, 0), corner(geom, row, 2, 1), corner(geom, row, 2, 2),
+                                   px, py, pz)
+    spheres = sphere_rows(geom)
+    return closest_on_sphere(spheres[row, 0], spheres[row, 1], spheres[row, 2], spheres[row, 3], px, py, pz)
 
 
 @kernel
@@ -140,9 +144,10 @@ def distance2_to_prim(kind, geom, row, px, py, pz):
     walk calls it from several places, and inlining it there multiplied their compile times."""
     if kind == TRIANGLE:
         return closest_on_prim(kind, geom, row, px, py, pz)[0]
-    fx, fy, fz = px - geom[row, 0], py - geom[row, 1], pz - geom[row, 2]
+    spheres = sphere_rows(geom)
+    fx, fy, fz = px - spheres[row, 0], py - spheres[row, 1], pz - spheres[row, 2]
     length = math.sqrt(fx * fx + fy * fy + fz * fz)
     if length == 0.0:
-        return geom[row, 3] * geom[row, 3]
-    gap = length - geom[row, 3]
+        return spheres[row, 3] * spheres[row, 3]
+    gap = length - spheres[row, 3]
     return gap * gap

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from .._jit import inline_kernel
+from .gather import sphere_rows
 from .kinds import TRIANGLE
 from .sphere import cross_sphere, intersect_sphere
 from .triangle import cross_triangle, intersect_triangle, shear_setup
@@ -28,7 +29,7 @@ def intersect_prim(kind, geom, prim, ray, t_min, t_max):
     ox, oy, oz, dx, dy, dz, kx, ky, kz, sx, sy, sz, okx, oky, okz = ray
     if kind == TRIANGLE:
         return intersect_triangle(geom, prim, okx, oky, okz, kx, ky, kz, sx, sy, sz, t_min, t_max)
-    return intersect_sphere(geom, prim, ox, oy, oz, dx, dy, dz, t_min, t_max), 0.0, 0.0
+    return intersect_sphere(sphere_rows(geom), prim, ox, oy, oz, dx, dy, dz, t_min, t_max), 0.0, 0.0
 
 
 @inline_kernel
@@ -42,5 +43,5 @@ def cross_prim(kind, geom, prim, ray, t_min, t_max):
     if kind == TRIANGLE:
         t, u, v, det = cross_triangle(geom, prim, okx, oky, okz, kx, ky, kz, sx, sy, sz, t_min, t_max)
         return (0 if t == np.inf else 1), t, np.inf, u, v, (1 if det < 0.0 else -1)
-    n, t_first, t_second = cross_sphere(geom, prim, ox, oy, oz, dx, dy, dz, t_min, t_max)
+    n, t_first, t_second = cross_sphere(sphere_rows(geom), prim, ox, oy, oz, dx, dy, dz, t_min, t_max)
     return n, t_first, t_second, 0.0, 0.0, 1

@@ -9,7 +9,8 @@ closed mesh always hits at least one of them. For the closest hit
 (:func:`intersect_triangle`) edge functions that are exactly zero count as
 inside; for counting crossings (:func:`cross_triangle`) a tie rule gives each
 crossing of a shared edge or vertex to exactly one triangle. Everything is float64, which the paper's fallback for
-zero edge functions asks for anyway. A triangle whose projected area (det) is
+zero edge functions asks for anyway; the corners are read through :func:`.gather.corner`, from either
+layout of :mod:`.gather` or from the scene's (n, 9) float64 rows. A triangle whose projected area (det) is
 within rounding error of zero is degenerate and never hit, so that no
 structure can disagree with another about a hit computed from noise.
 """
@@ -19,6 +20,7 @@ from __future__ import annotations
 import numpy as np
 
 from .._jit import inline_kernel
+from .gather import corner
 
 __all__ = ["shear_setup", "intersect_triangle", "cross_triangle"]
 
@@ -50,15 +52,15 @@ def _sheared_vertices(geom, prim, okx, oky, okz, kx, ky, kz, sx, sy):
     """The triangle's vertices relative to the ray origin (``okx, oky, okz``: its coordinates
     on the axes ``kx, ky, kz``), sheared so that the ray runs along +z: ``(ax, ay, bx, by, cx,
     cy, az, bz, cz)``, z not yet scaled by ``sz``."""
-    az_ = geom[prim, kz] - okz
-    bz_ = geom[prim, 3 + kz] - okz
-    cz_ = geom[prim, 6 + kz] - okz
-    ax_ = (geom[prim, kx] - okx) - sx * az_
-    ay_ = (geom[prim, ky] - oky) - sy * az_
-    bx_ = (geom[prim, 3 + kx] - okx) - sx * bz_
-    by_ = (geom[prim, 3 + ky] - oky) - sy * bz_
-    cx_ = (geom[prim, 6 + kx] - okx) - sx * cz_
-    cy_ = (geom[prim, 6 + ky] - oky) - sy * cz_
+    az_ = corner(geom, prim, 0, kz) - okz
+    bz_ = corner(geom, prim, 1, kz) - okz
+    cz_ = corner(geom, prim, 2, kz) - okz
+    ax_ = (corner(geom, prim, 0, kx) - okx) - sx * az_
+    ay_ = (corner(geom, prim, 0, ky) - oky) - sy * az_
+    bx_ = (corner(geom, prim, 1, kx) - okx) - sx * bz_
+    by_ = (corner(geom, prim, 1, ky) - oky) - sy * bz_
+    cx_ = (corner(geom, prim, 2, kx) - okx) - sx * cz_
+    cy_ = (corner(geom, prim, 2, ky) - oky) - sy * cz_
     return ax_, ay_, bx_, by_, cx_, cy_, az_, bz_, cz_
 
 

@@ -22,6 +22,7 @@ from __future__ import annotations
 import math
 
 from .._jit import inline_kernel
+from .gather import corner, sphere_rows
 from .kinds import TRIANGLE
 
 __all__ = ["solid_angle", "prim_winding"]
@@ -29,10 +30,10 @@ __all__ = ["solid_angle", "prim_winding"]
 
 @inline_kernel
 def solid_angle(geom, row, px, py, pz):
-    """Signed solid angle of triangle ``geom[row]`` (9 coordinates) seen from ``p``."""
-    ax, ay, az = geom[row, 0] - px, geom[row, 1] - py, geom[row, 2] - pz
-    bx, by, bz = geom[row, 3] - px, geom[row, 4] - py, geom[row, 5] - pz
-    cx, cy, cz = geom[row, 6] - px, geom[row, 7] - py, geom[row, 8] - pz
+    """Signed solid angle of triangle ``row`` of ``geom`` seen from ``p``."""
+    ax, ay, az = corner(geom, row, 0, 0) - px, corner(geom, row, 0, 1) - py, corner(geom, row, 0, 2) - pz
+    bx, by, bz = corner(geom, row, 1, 0) - px, corner(geom, row, 1, 1) - py, corner(geom, row, 1, 2) - pz
+    cx, cy, cz = corner(geom, row, 2, 0) - px, corner(geom, row, 2, 1) - py, corner(geom, row, 2, 2) - pz
     la = math.sqrt(ax * ax + ay * ay + az * az)
     lb = math.sqrt(bx * bx + by * by + bz * bz)
     lc = math.sqrt(cx * cx + cy * cy + cz * cz)
@@ -49,5 +50,6 @@ def prim_winding(kind, geom, row, px, py, pz):
     (triangles), 1 or 0 (spheres: inside or not)."""
     if kind == TRIANGLE:
         return solid_angle(geom, row, px, py, pz) / (4.0 * math.pi)
-    fx, fy, fz = px - geom[row, 0], py - geom[row, 1], pz - geom[row, 2]
-    return 1.0 if fx * fx + fy * fy + fz * fz < geom[row, 3] * geom[row, 3] else 0.0
+    spheres = sphere_rows(geom)
+    fx, fy, fz = px - spheres[row, 0], py - spheres[row, 1], pz - spheres[row, 2]
+    return 1.0 if fx * fx + fy * fy + fz * fz < spheres[row, 3] * spheres[row, 3] else 0.0

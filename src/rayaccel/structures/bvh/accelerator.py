@@ -9,6 +9,7 @@ import numpy as np
 
 from ..._jit import thread_count
 from ..._validate import check_number
+from ...geometry.gather import layout_nbytes
 from ...geometry.kdop import KDOP_NORMALS, kdop_surface_areas
 from ...stats import surface_area_stats
 from ..actions import NEAREST
@@ -124,11 +125,11 @@ class BoundingVolumeHierarchy(Accelerator):
         records = pack_nodes(box[:1], first[:1], count[:1]) if wide else pack_nodes(box, first, count)
         self.bvh = BvhArrays(box, first, count, order, records)
         if bounds == "kdop":
-            self.volume = fit_kdops(self.scene.kind, self.geometry, first, count, KDOP_NORMALS)
+            self.volume = fit_kdops(self.scene.kind, self.scene.geometry[order], first, count, KDOP_NORMALS)
             self.volume[:, :7] -= 2.0 * pad
             self.volume[:, 7:] += 2.0 * pad
         elif bounds == "sphere":
-            self.volume = fit_spheres(self.scene.kind, self.geometry, first, count,
+            self.volume = fit_spheres(self.scene.kind, self.scene.geometry[order], first, count,
                                       self.options["sphere_fit"] == "children")
         else:
             self.volume = np.zeros((0, 1))
@@ -205,7 +206,7 @@ class BoundingVolumeHierarchy(Accelerator):
     @property
     def nbytes(self) -> int:
         """Bytes of the arrays that queries read: the tree, its bounding volumes and the primitives."""
-        return int(self.bvh.traversal_bytes + self._volume_rows.nbytes + self.geometry.nbytes
+        return int(self.bvh.traversal_bytes + self._volume_rows.nbytes + layout_nbytes(self.geometry)
                    + (self.wide.nbytes if self.wide is not None else 0))
 
     def _structure_stats(self) -> dict:

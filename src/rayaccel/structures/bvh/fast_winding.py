@@ -32,6 +32,7 @@ import numpy as np
 from numba import prange
 
 from ..._jit import kernel, parallel_kernel, thread_id
+from ...geometry.gather import corner
 from ...geometry.kinds import TRIANGLE
 from ...geometry.winding import prim_winding
 
@@ -65,14 +66,17 @@ def winding_moments(kind, geom, node_box, node_first, node_count):
         nx = ny = nz = cx = cy = cz = a = 0.0
         if node_count[node] > 0:
             for k in range(node_first[node], node_first[node] + node_count[node]):
-                ex, ey, ez = geom[k, 3] - geom[k, 0], geom[k, 4] - geom[k, 1], geom[k, 5] - geom[k, 2]
-                fx, fy, fz = geom[k, 6] - geom[k, 0], geom[k, 7] - geom[k, 1], geom[k, 8] - geom[k, 2]
+                ax, ay, az = corner(geom, k, 0, 0), corner(geom, k, 0, 1), corner(geom, k, 0, 2)
+                bx, by, bz = corner(geom, k, 1, 0), corner(geom, k, 1, 1), corner(geom, k, 1, 2)
+                qx, qy, qz = corner(geom, k, 2, 0), corner(geom, k, 2, 1), corner(geom, k, 2, 2)
+                ex, ey, ez = bx - ax, by - ay, bz - az
+                fx, fy, fz = qx - ax, qy - ay, qz - az
                 tx, ty, tz = 0.5 * (ey * fz - ez * fy), 0.5 * (ez * fx - ex * fz), 0.5 * (ex * fy - ey * fx)
                 ta = math.sqrt(tx * tx + ty * ty + tz * tz)
                 nx, ny, nz, a = nx + tx, ny + ty, nz + tz, a + ta
-                cx += ta * (geom[k, 0] + geom[k, 3] + geom[k, 6]) / 3.0
-                cy += ta * (geom[k, 1] + geom[k, 4] + geom[k, 7]) / 3.0
-                cz += ta * (geom[k, 2] + geom[k, 5] + geom[k, 8]) / 3.0
+                cx += ta * (ax + bx + qx) / 3.0
+                cy += ta * (ay + by + qy) / 3.0
+                cz += ta * (az + bz + qz) / 3.0
         else:
             for j in range(2):
                 child = node_first[node] + j
@@ -88,10 +92,10 @@ def winding_moments(kind, geom, node_box, node_first, node_count):
             cy = 0.5 * (node_box[node, 1] + node_box[node, 4])
             cz = 0.5 * (node_box[node, 2] + node_box[node, 5])
         r2 = 0.0
-        for corner in range(8):
-            dx = node_box[node, 3 if corner & 1 else 0] - cx
-            dy = node_box[node, 4 if corner & 2 else 1] - cy
-            dz = node_box[node, 5 if corner & 4 else 2] - cz
+        for box_corner in range(8):
+            dx = node_box[node, 3 if box_corner & 1 else 0] - cx
+            dy = node_box[node, 4 if box_corner & 2 else 1] - cy
+            dz = node_box[node, 5 if box_corner & 4 else 2] - cz
             r2 = max(r2, dx * dx + dy * dy + dz * dz)
         moments[node] = (nx, ny, nz, cx, cy, cz, math.sqrt(r2))
         area[node] = a

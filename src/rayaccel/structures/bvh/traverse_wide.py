@@ -30,6 +30,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..._jit import chunk_kernel, inline_kernel, prefetch
+from ...geometry.gather import prefetch_prim
 from ...geometry.primitive import ray_setup
 from ..actions import NEAREST, finish_ray_in_mode, visit_prim_in_mode
 from .traverse import enter_box
@@ -48,7 +49,7 @@ def _push(records, geom, stack_link, stack_count, stack_t, tid, base, sp, t, lin
         for line in range(0, 64, 16):
             prefetch(records, link, line)
     else:
-        prefetch(geom, link, 0)
+        prefetch_prim(geom, link)
     slot = sp
     if nearest_first:
         while slot > base and stack_t[tid, slot - 1] < t:
