@@ -105,7 +105,10 @@ class TriangleMesh:
         return f"TriangleMesh({len(self.vertices)} vertices, {len(self.faces)} triangles)"
 
     def bounds(self) -> PrimitiveBounds:
-        return PrimitiveBounds(*primitive_bounds(TRIANGLE, self.geometry), partial(triangle_centroids, self.geometry))
+        """The triangles' boxes, read through the faces (the corners' rows, :attr:`geometry`,
+        are not gathered for them)."""
+        corners = (self.faces, self.vertices)
+        return PrimitiveBounds(*primitive_bounds(TRIANGLE, corners), partial(triangle_centroids, corners))
 
     def face_normals(self) -> np.ndarray:
         """Unit normals (F, 3) by the right-hand rule; zero for degenerate faces."""

@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 from .._jit import inline_kernel, kernel, on_threads, thread_count
-from .gather import corner, sphere_rows
+from .gather import corner, prim_count, sphere_rows
 from .kinds import SPHERE, TRIANGLE
 
 __all__ = ["primitive_extent", "primitive_bounds", "triangle_centroids", "sphere_centroids"]
@@ -58,13 +58,14 @@ def _triangle_centroids(geometry, first, end, centroid):
     """Vertex means of triangles ``first:end`` into ``centroid``."""
     for p in range(first, end):
         for k in range(3):
-            centroid[p, k] = (geometry[p, k] + geometry[p, 3 + k] + geometry[p, 6 + k]) / 3.0
+            centroid[p, k] = (corner(geometry, p, 0, k) + corner(geometry, p, 1, k) + corner(geometry, p, 2, k)) / 3.0
 
 
-def primitive_bounds(kind: int, geometry: np.ndarray):
-    """``(lo, hi, scene_lo, scene_hi)``: the boxes (n, 3) of the primitives, triangles stored as
-    rows of 9 floats or spheres as rows ``x, y, z, r``, and the box (3,) around them all."""
-    n = geometry.shape[0]
+def primitive_bounds(kind: int, geometry):
+    """``(lo, hi, scene_lo, scene_hi)``: the boxes (n, 3) of the primitives, and the box (3,)
+    around them all. Triangles are in a layout of :mod:`.gather` or in rows of 9 floats
+    (a mesh's ``(faces, vertices)`` is the indexed layout), spheres in rows ``x, y, z, r``."""
+    n = prim_count(geometry)
     lo = np.empty((n, 3))
     hi = np.empty((n, 3))
     chunk_box = np.empty((max(thread_count(), 1), 6))  # on_threads makes at most one chunk per thread
@@ -75,10 +76,11 @@ def primitive_bounds(kind: int, geometry: np.ndarray):
     return lo, hi, chunk_box[:, :3].min(axis=0), chunk_box[:, 3:].max(axis=0)
 
 
-def triangle_centroids(geometry: np.ndarray) -> np.ndarray:
-    """(n, 3) vertex means of triangles stored as rows of 9 floats."""
-    centroid = np.empty((geometry.shape[0], 3))
-    on_threads(lambda first, end, c: _triangle_centroids(geometry, first, end, centroid), geometry.shape[0])
+def triangle_centroids(geometry) -> np.ndarray:
+    """(n, 3) vertex means of triangles, in the layouts :func:`primitive_bounds` takes."""
+    n = prim_count(geometry)
+    centroid = np.empty((n, 3))
+    on_threads(lambda first, end, c: _triangle_centroids(geometry, first, end, centroid), n)
     return centroid
 
 

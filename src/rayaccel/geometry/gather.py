@@ -32,7 +32,7 @@ from numba.extending import overload
 
 from .._jit import kernel, on_threads, prefetch, unsigned
 
-__all__ = ["gather_triangles", "layout_nbytes", "corner", "prefetch_prim", "sphere_rows", "float32_exact"]
+__all__ = ["gather_triangles", "prim_count", "layout_nbytes", "corner", "prefetch_prim", "sphere_rows", "float32_exact"]
 
 
 @kernel
@@ -90,6 +90,11 @@ def gather_triangles(vertices, faces, order, exact_in_float32: bool, out=None):
     leaf_vertices = np.empty((_number_by_first_use(faces, order, leaf_id, corner_ids), 3))
     _place_vertices(vertices, leaf_id, leaf_vertices)
     return corner_ids, leaf_vertices
+
+
+def prim_count(geom) -> int:
+    """How many primitives a layout holds."""
+    return len(geom[0]) if isinstance(geom, tuple) else len(geom)
 
 
 def layout_nbytes(geom) -> int:
