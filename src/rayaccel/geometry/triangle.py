@@ -107,7 +107,9 @@ def _triangle_hit(geom, prim, okx, oky, okz, kx, ky, kz, sx, sy, sz, t_min, t_ma
     e0 = cx_ * by_ - cy_ * bx_
     e1 = ax_ * cy_ - ay_ * cx_
     e2 = bx_ * ay_ - by_ * ax_
-    if (e0 < 0.0 or e1 < 0.0 or e2 < 0.0) and (e0 > 0.0 or e1 > 0.0 or e2 > 0.0):
+    # Bitwise, not short-circuit: one branch for the verdict instead of up to six, each hard to
+    # predict (full dragon, one thread: 1.06-1.11 in every column; the forest 0.93-1.04).
+    if ((e0 < 0.0) | (e1 < 0.0) | (e2 < 0.0)) & ((e0 > 0.0) | (e1 > 0.0) | (e2 > 0.0)):
         return np.inf, 0.0, 0.0, 0.0
     if one_owner and (e0 == 0.0 or e1 == 0.0 or e2 == 0.0):
         s0 = _edge_sign(e0, cx_, cy_, bx_, by_)
