@@ -298,3 +298,18 @@ def test_refit_to_vertices_float32_cannot_hold_changes_the_layout(small_dragon):
     moved_mesh = ra.TriangleMesh(moved, small_dragon.faces)
     origins, directions = random_rays(moved_mesh, 3000)
     assert_same_hits(ra.build(moved_mesh, "none").intersect(origins, directions), accel.intersect(origins, directions))
+
+
+def test_bvh_queries_leave_the_scene_without_float64_rows(small_dragon):
+    """A BVH reads its own leaf layout; building it and answering every query gathers no (F, 9)
+    float64 copy of the triangles onto the scene (72 bytes a triangle kept as long as the mesh)."""
+    mesh = ra.TriangleMesh(small_dragon.vertices, small_dragon.faces)
+    accel = ra.build(mesh, "bvh-binned")
+    origins, directions = random_rays(mesh, 500)
+    accel.intersect(origins, directions)
+    accel.occluded(origins, directions)
+    accel.count(origins, directions)
+    accel.intersect_all(origins, directions)
+    accel.closest_point(origins)
+    accel.signed_distance(origins)
+    assert "geometry" not in vars(mesh)

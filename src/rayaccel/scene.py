@@ -104,11 +104,16 @@ class TriangleMesh:
     def __repr__(self) -> str:
         return f"TriangleMesh({len(self.vertices)} vertices, {len(self.faces)} triangles)"
 
+    @property
+    def corners(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(faces, vertices)``: the triangles in the indexed layout of :mod:`rayaccel.geometry.gather`,
+        over the mesh's own arrays, for kernels that read a few triangles each (no rows gathered)."""
+        return self.faces, self.vertices
+
     def bounds(self) -> PrimitiveBounds:
-        """The triangles' boxes, read through the faces (the corners' rows, :attr:`geometry`,
-        are not gathered for them)."""
-        corners = (self.faces, self.vertices)
-        return PrimitiveBounds(*primitive_bounds(TRIANGLE, corners), partial(triangle_centroids, corners))
+        """The triangles' boxes, read through :attr:`corners` (the rows of :attr:`geometry` are not
+        gathered for them)."""
+        return PrimitiveBounds(*primitive_bounds(TRIANGLE, self.corners), partial(triangle_centroids, self.corners))
 
     def face_normals(self) -> np.ndarray:
         """Unit normals (F, 3) by the right-hand rule; zero for degenerate faces."""
