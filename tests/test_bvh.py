@@ -273,7 +273,7 @@ def test_highest_bit():
 def test_leaf_triangles_take_the_smallest_exact_layout(scene_name, layout, request):
     """The dragon's PLY holds float32 vertices, so its leaf triangles are float32 rows; the bunny's
     OBJ does not, so its are vertex indices into vertices renumbered by first use. Both hold the
-    scene's corners exactly, and the structure stays within Embree's 85 bytes per triangle."""
+    scene's corners exactly, and what a ray query reads stays under 85 bytes per triangle."""
     scene = request.getfixturevalue(scene_name)
     accel = ra.build(scene, "bvh-binned")
     expected = scene.geometry[accel.bvh.prim_order]
@@ -291,6 +291,8 @@ def test_leaf_triangles_take_the_smallest_exact_layout(scene_name, layout, reque
 
 
 def test_refit_to_vertices_float32_cannot_hold_changes_the_layout(small_dragon):
+    """Moved vertices that float32 cannot hold turn the dragon's float32 rows into the indexed
+    layout at the refit, and the hits stay brute force's."""
     accel = ra.build(small_dragon, "bvh-binned")
     moved = small_dragon.vertices + 1e-3 / 3
     accel.refit(moved)

@@ -105,15 +105,16 @@ class TriangleMesh:
         return f"TriangleMesh({len(self.vertices)} vertices, {len(self.faces)} triangles)"
 
     @property
-    def corners(self) -> tuple[np.ndarray, np.ndarray]:
+    def prim_layout(self) -> tuple[np.ndarray, np.ndarray]:
         """``(faces, vertices)``: the triangles in the indexed layout of :mod:`rayaccel.geometry.gather`,
         over the mesh's own arrays, for kernels that read a few triangles each (no rows gathered)."""
         return self.faces, self.vertices
 
     def bounds(self) -> PrimitiveBounds:
-        """The triangles' boxes, read through :attr:`corners` (the rows of :attr:`geometry` are not
-        gathered for them)."""
-        return PrimitiveBounds(*primitive_bounds(TRIANGLE, self.corners), partial(triangle_centroids, self.corners))
+        """The triangles' boxes, read through :attr:`prim_layout` (the rows of :attr:`geometry` are
+        not gathered for them)."""
+        return PrimitiveBounds(*primitive_bounds(TRIANGLE, self.prim_layout),
+                               partial(triangle_centroids, self.prim_layout))
 
     def face_normals(self) -> np.ndarray:
         """Unit normals (F, 3) by the right-hand rule; zero for degenerate faces."""
@@ -160,6 +161,12 @@ class Spheres:
             raise ValueError(f"radii must be positive; radius {first} is {radii[first]}")
         self.radii = np.ascontiguousarray(radii)
         self.geometry = np.ascontiguousarray(np.column_stack([self.centers, self.radii]))
+
+    @property
+    def prim_layout(self) -> np.ndarray:
+        """The spheres' rows, :attr:`geometry`: the layout kernels read, as a mesh's
+        :attr:`TriangleMesh.prim_layout`."""
+        return self.geometry
 
     def gather(self, order: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
         """``geometry[order]``, written into ``out`` (len(order), 4) when given."""

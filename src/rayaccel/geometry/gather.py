@@ -32,7 +32,8 @@ from numba.extending import overload
 
 from .._jit import kernel, on_threads, prefetch, unsigned
 
-__all__ = ["gather_triangles", "prim_count", "layout_nbytes", "corner", "prefetch_prim", "sphere_rows", "float32_exact"]
+__all__ = ["gather_triangles", "layout_rows", "prim_count", "layout_nbytes", "corner", "prefetch_prim", "sphere_rows",
+           "float32_exact"]
 
 
 @kernel
@@ -90,6 +91,15 @@ def gather_triangles(vertices, faces, order, exact_in_float32: bool, out=None):
     leaf_vertices = np.empty((_number_by_first_use(faces, order, leaf_id, corner_ids), 3))
     _place_vertices(vertices, leaf_id, leaf_vertices)
     return corner_ids, leaf_vertices
+
+
+def layout_rows(geom) -> np.ndarray:
+    """The triangles of a layout as (n, 9) float64 rows, for the passes that want whole rows
+    (fitting a BVH's other bounding volumes); sphere rows as they are."""
+    if isinstance(geom, tuple):
+        corner_ids, vertices = geom
+        return vertices[corner_ids].reshape(-1, 9)
+    return geom.astype(np.float64)
 
 
 def prim_count(geom) -> int:

@@ -120,8 +120,7 @@ class PointQueries:
         point, distance, prim, u, v = empty_closest(len(points))
         if len(points):
             _, prim = self._nearest_d2(points, max_distance)
-            prims = self.scene.corners if self.scene.kind == TRIANGLE else self.scene.geometry
-            finish_closest(self.scene.kind, prims, points, prim, point, distance, u, v)
+            finish_closest(self.scene.kind, self.scene.prim_layout, points, prim, point, distance, u, v)
         return ClosestPoints(point, distance, prim, u, v, np.minimum(prim, 0))
 
     def _nearest_d2(self, points, max_distance):

@@ -9,7 +9,7 @@ import numpy as np
 
 from ..._jit import thread_count
 from ..._validate import check_number
-from ...geometry.gather import layout_nbytes
+from ...geometry.gather import layout_nbytes, layout_rows
 from ...geometry.kdop import KDOP_NORMALS, kdop_surface_areas
 from ...stats import surface_area_stats
 from ..actions import NEAREST
@@ -125,11 +125,11 @@ class BoundingVolumeHierarchy(Accelerator):
         records = pack_nodes(box[:1], first[:1], count[:1]) if wide else pack_nodes(box, first, count)
         self.bvh = BvhArrays(box, first, count, order, records)
         if bounds == "kdop":
-            self.volume = fit_kdops(self.scene.kind, self.scene.geometry[order], first, count, KDOP_NORMALS)
+            self.volume = fit_kdops(self.scene.kind, layout_rows(self.geometry), first, count, KDOP_NORMALS)
             self.volume[:, :7] -= 2.0 * pad
             self.volume[:, 7:] += 2.0 * pad
         elif bounds == "sphere":
-            self.volume = fit_spheres(self.scene.kind, self.scene.geometry[order], first, count,
+            self.volume = fit_spheres(self.scene.kind, layout_rows(self.geometry), first, count,
                                       self.options["sphere_fit"] == "children")
         else:
             self.volume = np.zeros((0, 1))
