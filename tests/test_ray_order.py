@@ -101,3 +101,31 @@ def test_structures_within_half_the_cache_trace_rays_as_given(small_dragon, inco
 
 def test_last_level_cache_is_read():
     assert last_level_cache_bytes.__wrapped__() >= 1 << 20
+
+
+@pytest.mark.parametrize("method", [m for m in ra.methods() if m != "none"])
+def test_limits_shared_by_every_ray_give_what_per_ray_limits_give(small_dragon, incoherent_batch, method):
+    """A query whose ``t_min`` and ``t_max`` are scalars traces a compact batch (one limit for
+    all rays, rays in place: :class:`rayaccel.rays.RayBatch`), sorted here as any batch; its
+    answers, misses included, are those of the same limits given per ray."""
+    origins, directions, _, _ = incoherent_batch
+    accel = ra.build(small_dragon, method)
+    for t_min, t_max in ((0.0, np.inf), (0.02, 0.3)):
+        per_ray = (np.full(len(origins), t_min), np.full(len(origins), t_max))
+        shared = accel.intersect(origins, directions, t_min, t_max, counters=True)
+        given = accel.intersect(origins, directions, *per_ray, counters=True, reorder=False)
+        assert_same_hits(given, shared)
+        assert np.isnan(shared.u[~shared.hit]).all() and (shared.t[~shared.hit] == np.inf).all()
+        np.testing.assert_array_equal(shared.counters.tests, given.counters.tests)
+        np.testing.assert_array_equal(accel.occluded(origins, directions, t_min, t_max),
+                                      accel.occluded(origins, directions, *per_ray, reorder=False))
+
+
+def test_compact_batch_shapes():
+    origins, directions = np.zeros((5, 3)), np.ones((5, 3))
+    compact = prepare_rays(origins, directions, 0.5, np.inf, compact=True)
+    assert compact.t_min.shape == compact.t_max.shape == (1,) and compact.hit_slot.shape == (0,)
+    mixed = prepare_rays(origins, directions, np.arange(5.0), 9.0, compact=True)
+    assert mixed.t_min.shape == (5,) and mixed.t_max.shape == (1,)
+    full = prepare_rays(origins, directions, 0.5, np.inf)
+    assert full.t_min.shape == (5,) and (full.hit_slot == np.arange(5)).all()

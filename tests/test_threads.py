@@ -10,7 +10,7 @@ import pytest
 from conftest import assert_same_hits, random_rays
 
 import rayaccel as ra
-from rayaccel._jit import chunk_count, set_threads, share_among_threads, thread_count
+from rayaccel._jit import chunk_count, set_threads, share_among_threads, thread_count, thread_rows
 
 
 @pytest.fixture
@@ -55,3 +55,12 @@ def test_walks_give_the_same_hits_on_one_thread_and_in_many_chunks(small_dragon,
         set_threads(2)
         assert_same_hits(alone, shared)
         np.testing.assert_array_equal(alone.counters.tests, shared.counters.tests)
+
+
+@pytest.mark.parametrize("shape, dtype", [((2, 8), np.float64), ((3, 33), np.int32), ((2, 17, 2), np.float64),
+                                          ((4, 5, 7), np.int64)])
+def test_thread_rows_start_on_their_own_cache_line_pairs(shape, dtype):
+    rows = thread_rows(shape, dtype)
+    assert rows.dtype == dtype and rows.flags.c_contiguous and rows.flags.writeable
+    assert rows.shape[0] == shape[0] and rows.shape[1] >= shape[1] and rows.shape[2:] == shape[2:]
+    assert all(rows[r].ctypes.data % 128 == 0 for r in range(shape[0]))

@@ -118,13 +118,14 @@ def as_index_triples(name: str, values, n_vertices: int) -> np.ndarray:
     return array
 
 
-def as_per_ray(name: str, value, n_rays: int) -> np.ndarray:
-    """A scalar or an (n_rays,) array as a float64 (n_rays,) array without NaN."""
+def as_per_ray(name: str, value, n_rays: int, *, shared: bool = False) -> np.ndarray:
+    """A scalar or an (n_rays,) array as a float64 (n_rays,) array without NaN; a scalar as a
+    (1,) array when ``shared`` (one value for every ray)."""
     array = np.asarray(value, dtype=np.float64)
     if array.ndim == 0:
         if np.isnan(array):
             raise ValueError(f"{name} contains NaN")
-        return np.full(n_rays, float(array))
+        return np.full(1 if shared else n_rays, float(array))
     if array.shape != (n_rays,):
         raise ValueError(f"{name} must be a scalar or have shape ({n_rays},), got {array.shape}")
     array = _owned(np.ascontiguousarray(array))

@@ -48,7 +48,7 @@ from numba import prange
 
 from ._jit import kernel, parallel_kernel, thread_count
 from .counting_sort import chunk_range, counts_to_starts
-from .rays import RayBatch
+from .rays import RayBatch, result_row
 
 __all__ = ["MIN_RAYS", "coherent_batch", "last_level_cache_bytes", "sorting_pays"]
 
@@ -106,9 +106,11 @@ def _sort_rays(origins, directions, t_min, t_max, hit_slot, lo, scale, bits_per_
             for axis in range(3):
                 out_origins[place, axis] = origins[i, axis]
                 out_directions[place, axis] = directions[i, axis]
-            out_t_min[place] = t_min[i]
-            out_t_max[place] = t_max[i]
-            out_hit_slot[place] = hit_slot[i]
+            if t_min.shape[0] > 1:
+                out_t_min[place] = t_min[i]
+            if t_max.shape[0] > 1:
+                out_t_max[place] = t_max[i]
+            out_hit_slot[place] = result_row(hit_slot, i)
 
 
 def coherent_batch(batch: RayBatch, scene_lo: np.ndarray, scene_hi: np.ndarray) -> RayBatch:
@@ -125,7 +127,10 @@ def coherent_batch(batch: RayBatch, scene_lo: np.ndarray, scene_hi: np.ndarray) 
     origins = batch.origins[sample]
     lo, extent = origins.min(axis=0), np.ptp(origins, axis=0)
     scale = (1 << _BITS_PER_AXIS) / np.where(extent > 0.0, extent, 1.0)
-    sorted_batch = RayBatch(*(np.empty_like(array) for array in batch))
+    sorted_batch = RayBatch(np.empty_like(batch.origins), np.empty_like(batch.directions),
+                            batch.t_min.copy() if len(batch.t_min) == 1 else np.empty_like(batch.t_min),
+                            batch.t_max.copy() if len(batch.t_max) == 1 else np.empty_like(batch.t_max),
+                            np.empty(n, dtype=np.int64))
     _sort_rays(*batch, lo, scale, _BITS_PER_AXIS, thread_count(), *sorted_batch)
     return sorted_batch
 

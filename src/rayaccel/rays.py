@@ -6,16 +6,26 @@ from typing import NamedTuple
 
 import numpy as np
 
+from ._jit import inline_kernel
 from ._validate import as_per_ray, as_points, check_ray_arrays
 
-__all__ = ["RayBatch", "RayCounters", "WORK_COLUMNS", "Hits", "AllHits", "Camera", "prepare_rays", "random_lines"]
+__all__ = ["RayBatch", "RayCounters", "WORK_COLUMNS", "Hits", "AllHits", "Camera", "prepare_rays", "random_lines",
+           "ray_limit", "result_row"]
 
 
 class RayBatch(NamedTuple):
     """Validated rays: float64 C-contiguous ``origins``/``directions`` (n, 3), ``t_min``/``t_max`` (n,),
     and ``hit_slot`` (n,) int64, the row of the output arrays that takes each ray's hit:
     ``arange(n)`` as given, a permutation once :func:`rayaccel.ray_order.coherent_batch`
-    has sorted the rays."""
+    has sorted the rays.
+
+    A *compact* batch (:func:`prepare_rays` with ``compact=True``) leaves out what every ray
+    shares: ``t_min`` or ``t_max`` of shape (1,) holds for all rays, and an empty ``hit_slot``
+    means rays in the order given. Kernels read both through :func:`ray_limit` and
+    :func:`result_row`, so they take either form; code that slices or indexes a batch's arrays
+    takes a full one. Writing the three arrays for a million rays cost about 3 ms of a
+    camera-ray query's 44 ms on the forest scene (two threads), with nothing to compute.
+    """
 
     origins: np.ndarray
     directions: np.ndarray
@@ -99,8 +109,9 @@ class AllHits(NamedTuple):
         return np.repeat(np.arange(len(self.offsets) - 1), np.diff(self.offsets))
 
 
-def prepare_rays(origins, directions, t_min=0.0, t_max=np.inf) -> RayBatch:
-    """Validate and convert a ray batch once, at the Python boundary.
+def prepare_rays(origins, directions, t_min=0.0, t_max=np.inf, *, compact: bool = False) -> RayBatch:
+    """Validate and convert a ray batch once, at the Python boundary; a compact
+    :class:`RayBatch` when ``compact``.
 
     Raises ``ValueError`` for NaN or infinite coordinates, mismatched shapes,
     NaN limits, and zero-length directions: a ray without a direction has no
@@ -117,8 +128,21 @@ def prepare_rays(origins, directions, t_min=0.0, t_max=np.inf) -> RayBatch:
             )
     check_ray_arrays(origins, directions)
     n = len(origins)
-    return RayBatch(origins, directions, as_per_ray("t_min", t_min, n), as_per_ray("t_max", t_max, n),
-                    np.arange(n, dtype=np.int64))
+    return RayBatch(origins, directions, as_per_ray("t_min", t_min, n, shared=compact),
+                    as_per_ray("t_max", t_max, n, shared=compact), np.arange(0 if compact else n, dtype=np.int64))
+
+
+@inline_kernel
+def ray_limit(limits, i):
+    """Ray ``i``'s entry of a batch's ``t_min`` or ``t_max``, which may hold one value for all."""
+    return limits[i if limits.shape[0] > 1 else 0]
+
+
+@inline_kernel
+def result_row(hit_slot, i):
+    """The row of the results that takes ray ``i``'s answer: ``hit_slot[i]``, or ``i`` when the
+    batch's ``hit_slot`` is empty."""
+    return hit_slot[i] if hit_slot.shape[0] > 0 else i
 
 
 class Camera:

@@ -75,7 +75,7 @@ class Action(NamedTuple):
     """What a walk does with the primitives it meets, and where it writes (per output row ``r``).
 
     ``mode``: NEAREST, COUNT, LIST or WINDING. NEAREST: ``t``, ``prim``, ``u``, ``v`` (n,), the
-    best hit of row ``r`` (rows start as misses). COUNT: ``count`` (n,) int64, crossings of row
+    best hit of row ``r`` (:func:`finish_ray` writes every row). COUNT: ``count`` (n,) int64, crossings of row
     ``r`` (starting at 0); WINDING: signed crossings there, in half units. LIST: row ``r``
     fills ``t, prim, u, v[offsets[r]:offsets[r + 1]]``, ``count[r]`` (starting at 0) of them
     so far. Arrays a mode does not use are empty.
@@ -206,19 +206,24 @@ def visit_prim_in_mode(mode, action, row, kind, geom, k, prim, ray, t_min, best_
 
 @inline_kernel
 def finish_ray(action, row, best_t, best_prim, best_u, best_v):
-    """Write what the walk kept for the ray of output row ``row``: the closest hit (the other
-    modes write as they go)."""
+    """Write what the walk kept for the ray of output row ``row``: the closest hit, or a miss
+    (``t = inf``, ``prim = -1``, ``u = v = NaN``; the other modes write as they go). Every ray
+    of a closest-hit walk ends here, so its output arrays need no filling beforehand."""
     finish_ray_in_mode(action.mode, action, row, best_t, best_prim, best_u, best_v)
 
 
 @inline_kernel
 def finish_ray_in_mode(mode, action, row, best_t, best_prim, best_u, best_v):
     """:func:`finish_ray` with the action's mode given apart (see :func:`visit_prim_in_mode`)."""
-    if mode == NEAREST and best_prim >= 0:
-        action.t[row] = best_t
+    if mode == NEAREST:
+        hit = best_prim >= 0
+        t = best_t if hit else np.inf
+        u = best_u if hit else np.nan
+        v = best_v if hit else np.nan
+        action.t[row] = t
         action.prim[row] = best_prim
-        action.u[row] = best_u
-        action.v[row] = best_v
+        action.u[row] = u
+        action.v[row] = v
 
 
 @inline_kernel

@@ -114,8 +114,7 @@ class Accelerator(PointQueries):
 
     def _intersect(self, origins, directions, t_min, t_max, any_hit, counters, reorder) -> Hits:
         """:meth:`intersect` on array inputs (scenes of instances override it)."""
-        rays, t, prim, u, v, work = self._cast(origins, directions, t_min, t_max, any_hit, counters, reorder,
-                                               coordinates=True)
+        rays, t, prim, u, v, work = self._cast(origins, directions, t_min, t_max, any_hit, counters, reorder)
         if self.scene.kind == SPHERE:
             sphere_hit_coords(self.scene.geometry, rays.origins, rays.directions, t, prim, u, v)
         ray_counters = RayCounters(*(work[:, k].copy() for k in range(WORK_COLUMNS))) if counters else None
@@ -291,16 +290,14 @@ class Accelerator(PointQueries):
             f"scene with ra.build(scene, {self.method!r})"
         )
 
-    def _cast(self, origins, directions, t_min, t_max, any_hit, counters, reorder, coordinates=False):
+    def _cast(self, origins, directions, t_min, t_max, any_hit, counters, reorder):
         """Validate the rays and trace them: ``(rays, t, prim, u, v, work)``, each in the order given.
-        The kernels write hits only, so ``t`` and ``prim`` start as misses, and so do ``u`` and
-        ``v`` (NaN) when the caller reads them (``coordinates``); otherwise they are scratch."""
-        rays = prepare_rays(origins, directions, t_min, t_max)
+        The kernels write every ray's row of ``t``, ``prim``, ``u`` and ``v``
+        (:func:`.actions.finish_ray`), so these start empty."""
+        rays = prepare_rays(origins, directions, t_min, t_max, compact=True)
         n = len(rays.origins)
-        t = np.full(n, np.inf)
-        prim = np.full(n, -1, dtype=np.int64)
-        u = np.full(n, np.nan) if coordinates else np.empty(n)
-        v = np.full(n, np.nan) if coordinates else np.empty(n)
+        t, u, v = np.empty(n), np.empty(n), np.empty(n)
+        prim = np.empty(n, dtype=np.int64)
         work = np.zeros((n if counters else 0, WORK_COLUMNS), dtype=np.int64)
         if n:
             self._trace(self._ordered(rays, reorder), any_hit, nearest_hit(t, prim, u, v), work)

@@ -8,6 +8,7 @@ from numba import prange
 from .._jit import chunk_kernel, parallel_kernel
 from ..geometry.primitive import ray_setup
 from ..geometry.winding import prim_winding
+from ..rays import ray_limit, result_row
 from .actions import finish_ray, visit_prim
 from .base import Accelerator, walk_rays
 from .point_actions import nearest_in_refs
@@ -21,22 +22,24 @@ def brute_force_kernel(ray_first, ray_end, tid, kind, geom, origins, directions,
     """Every ray against every primitive, the leaf action (:mod:`.actions`) applied to each."""
     n_prims = geom.shape[0]
     for i in range(ray_first, ray_end):
+        row = result_row(hit_slot, i)
+        ray_t_min, ray_t_max = ray_limit(t_min, i), ray_limit(t_max, i)
         ray = ray_setup(origins[i, 0], origins[i, 1], origins[i, 2],
                         directions[i, 0], directions[i, 1], directions[i, 2])
-        best_t = t_max[i]
+        best_t = ray_t_max
         best_prim = -1
         best_u = 0.0
         best_v = 0.0
         tests = 0
         for prim in range(n_prims):
             tests += 1
-            best_t, best_prim, best_u, best_v, stop = visit_prim(action, hit_slot[i], kind, geom, prim, prim, ray,
-                                                                 t_min[i], best_t, best_prim, best_u, best_v, any_hit)
+            best_t, best_prim, best_u, best_v, stop = visit_prim(action, row, kind, geom, prim, prim, ray,
+                                                                 ray_t_min, best_t, best_prim, best_u, best_v, any_hit)
             if stop:
                 break
-        finish_ray(action, hit_slot[i], best_t, best_prim, best_u, best_v)
+        finish_ray(action, row, best_t, best_prim, best_u, best_v)
         if work.shape[0] > 0:
-            work[hit_slot[i], 1] = tests
+            work[row, 1] = tests
 
 
 @parallel_kernel

@@ -26,6 +26,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from .._jit import thread_rows
 from ..geometry.kinds import TRIANGLE
 from ..points import ClosestPoints, check_accuracy, check_max_distance, prepare_points
 from .point_actions import empty_closest, finish_closest
@@ -152,7 +153,7 @@ class PointQueries:
         out = np.zeros(len(points))
         if len(points):
             box, first, count, geometry, moments, depth = self._winding_tree()
-            stack = np.empty((numba.config.NUMBA_NUM_THREADS, 2 * depth + 4), dtype=np.int64)
+            stack = thread_rows((numba.config.NUMBA_NUM_THREADS, 2 * depth + 4), np.int64)
             fast_winding_kernel(self.scene.kind, geometry, box, first, count, moments, points, accuracy, stack, out)
         return out
 

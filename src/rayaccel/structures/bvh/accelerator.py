@@ -7,7 +7,7 @@ import time
 import numba
 import numpy as np
 
-from ..._jit import thread_count
+from ..._jit import thread_count, thread_rows
 from ..._validate import check_number
 from ...geometry.gather import layout_nbytes, layout_rows
 from ...geometry.kdop import KDOP_NORMALS, kdop_surface_areas
@@ -161,15 +161,15 @@ class BoundingVolumeHierarchy(Accelerator):
         if self.wide is not None:
             depth = (WIDTH - 1) * self.max_depth + 2
             links = self.wide.view(np.int32)
-            stack_link, stack_count = np.empty((rows, depth), dtype=np.int32), np.empty((rows, depth), dtype=np.int32)
-            stack_t = np.empty((rows, depth))
+            stack_link, stack_count = thread_rows((rows, depth), np.int32), thread_rows((rows, depth), np.int32)
+            stack_t = thread_rows((rows, depth))
             walk = wide_nearest_kernel if action.mode == NEAREST else wide_crossings_kernel
             walk_rays(walk, len(batch.origins), b.node_records, self.wide, links, b.prim_order,
                       self.scene.kind, self.geometry, *batch, any_hit, stack_link, stack_count, stack_t,
-                      np.empty((rows, WIDTH)), action, work)
+                      thread_rows((rows, WIDTH)), action, work)
             return
-        stack_node = np.empty((rows, self.max_depth + 2), dtype=np.int32)
-        stack_t = np.empty((rows, self.max_depth + 2))
+        stack_node = thread_rows((rows, self.max_depth + 2), np.int32)
+        stack_t = thread_rows((rows, self.max_depth + 2))
         walk_rays(bvh_trace_kernel, len(batch.origins), self.bounds_kind, b.node_records, self._volume_rows,
                   b.node_records.view(np.int32), b.prim_order, self.scene.kind, self.geometry, KDOP_NORMALS, *batch,
                   any_hit, stack_node, stack_t, action, work)
@@ -179,8 +179,8 @@ class BoundingVolumeHierarchy(Accelerator):
         b = self.bvh
         rows = numba.config.NUMBA_NUM_THREADS
         bvh_nearest_kernel(b.node_box, b.node_first, b.node_count, b.prim_order, self.scene.kind, self.geometry,
-                           points, limit_d2, np.empty((rows, self.max_depth + 2), dtype=np.int32),
-                           np.empty((rows, self.max_depth + 2)), out_d2, out_prim)
+                           points, limit_d2, thread_rows((rows, self.max_depth + 2), np.int32),
+                           thread_rows((rows, self.max_depth + 2)), out_d2, out_prim)
 
     def _winding_tree(self):
         """The fast winding number runs on this BVH's own binary tree (moments cached until a refit)."""

@@ -22,6 +22,7 @@ from ..._jit import chunk_kernel, inline_kernel
 from ...geometry.kdop import KDOP_NORMALS
 from ...geometry.primitive import ray_setup
 from ...geometry.sphere import sphere_span
+from ...rays import ray_limit, result_row
 from ..actions import finish_ray, visit_prim
 
 __all__ = ["BOX", "SPHERE_VOLUME", "KDOP", "KDOP_NORMALS", "tighten", "enter_box", "volume_ray_setup",
@@ -127,12 +128,13 @@ def bvh_trace_kernel(ray_first, ray_end, tid, bounds_kind, node_box, node_volume
     """
     count_work = work.shape[0] > 0
     for i in range(ray_first, ray_end):
+        row = result_row(hit_slot, i)
+        ray_t_min, ray_t_max = ray_limit(t_min, i), ray_limit(t_max, i)
         ox, oy, oz = origins[i, 0], origins[i, 1], origins[i, 2]
         dx, dy, dz = directions[i, 0], directions[i, 1], directions[i, 2]
         ray = ray_setup(ox, oy, oz, dx, dy, dz)
         proj_o, proj_inv, near_faces = volume_ray_setup(ox, oy, oz, dx, dy, dz, normals, bounds_kind == KDOP)
-        ray_t_min = t_min[i]
-        best_t = t_max[i]
+        best_t = ray_t_max
         best_prim = -1
         best_u = 0.0
         best_v = 0.0
@@ -152,7 +154,7 @@ def bvh_trace_kernel(ray_first, ray_end, tid, bounds_kind, node_box, node_volume
                 first = node_links[node, 6]
                 for k in range(first, first + count):
                     n_tests += 1
-                    best_t, best_prim, best_u, best_v, stop = visit_prim(action, hit_slot[i], kind, geom, k,
+                    best_t, best_prim, best_u, best_v, stop = visit_prim(action, row, kind, geom, k,
                                                                          prim_order[k], ray, ray_t_min, best_t,
                                                                          best_prim, best_u, best_v, any_hit)
                     if stop:
@@ -182,8 +184,8 @@ def bvh_trace_kernel(ray_first, ray_end, tid, bounds_kind, node_box, node_volume
                 sp -= 1
                 if stack_t[tid, sp] <= best_t:
                     node = stack_node[tid, sp]
-        finish_ray(action, hit_slot[i], best_t, best_prim, best_u, best_v)
+        finish_ray(action, row, best_t, best_prim, best_u, best_v)
         if count_work:
-            work[hit_slot[i], 0] = n_nodes
-            work[hit_slot[i], 1] = n_tests
-            work[hit_slot[i], 3] = n_leaves
+            work[row, 0] = n_nodes
+            work[row, 1] = n_tests
+            work[row, 3] = n_leaves

@@ -32,6 +32,7 @@ import numpy as np
 from ..._jit import chunk_kernel, inline_kernel, prefetch
 from ...geometry.gather import prefetch_prim
 from ...geometry.primitive import ray_setup
+from ...rays import ray_limit, result_row
 from ..actions import NEAREST, finish_ray_in_mode, visit_prim_in_mode
 from .traverse import enter_box
 from .wide import COUNT, LINK
@@ -80,6 +81,8 @@ def _walk(ray_first, ray_end, tid, root_box, records, links, prim_order, kind, g
     nearest_first = not any_hit and mode == NEAREST
     child_entry = entry[tid]
     for i in range(ray_first, ray_end):
+        row = result_row(hit_slot, i)
+        ray_t_min, ray_t_max = ray_limit(t_min, i), ray_limit(t_max, i)
         ox, oy, oz = origins[i, 0], origins[i, 1], origins[i, 2]
         dx, dy, dz = directions[i, 0], directions[i, 1], directions[i, 2]
         ray = ray_setup(ox, oy, oz, dx, dy, dz)
@@ -89,8 +92,7 @@ def _walk(ray_first, ray_end, tid, root_box, records, links, prim_order, kind, g
         near_x = 0 if ix >= 0.0 else 3
         near_y = 1 if iy >= 0.0 else 4
         near_z = 2 if iz >= 0.0 else 5
-        ray_t_min = t_min[i]
-        best_t = t_max[i]
+        best_t = ray_t_max
         best_prim = -1
         best_u = 0.0
         best_v = 0.0
@@ -139,7 +141,7 @@ def _walk(ray_first, ray_end, tid, root_box, records, links, prim_order, kind, g
                 first = stack_link[tid, sp]
                 for k in range(first, first + count):
                     n_tests += 1
-                    best_t, best_prim, best_u, best_v, stop = visit_prim_in_mode(mode, action, hit_slot[i], kind,
+                    best_t, best_prim, best_u, best_v, stop = visit_prim_in_mode(mode, action, row, kind,
                                                                                  geom, k, prim_order[k], ray,
                                                                                  ray_t_min, best_t, best_prim,
                                                                                  best_u, best_v, any_hit)
@@ -147,11 +149,11 @@ def _walk(ray_first, ray_end, tid, root_box, records, links, prim_order, kind, g
                         break
                 if any_hit and best_prim >= 0:
                     sp = 0
-        finish_ray_in_mode(mode, action, hit_slot[i], best_t, best_prim, best_u, best_v)
+        finish_ray_in_mode(mode, action, row, best_t, best_prim, best_u, best_v)
         if count_work:
-            work[hit_slot[i], 0] = n_nodes
-            work[hit_slot[i], 1] = n_tests
-            work[hit_slot[i], 3] = n_leaves
+            work[row, 0] = n_nodes
+            work[row, 1] = n_tests
+            work[row, 3] = n_leaves
 
 
 @chunk_kernel

@@ -26,7 +26,7 @@ import numba
 import numpy as np
 from numba import prange
 
-from ..._jit import inline_kernel, kernel, parallel_kernel, thread_id
+from ..._jit import inline_kernel, kernel, parallel_kernel, thread_id, thread_rows
 from ..bvh.nearest import bvh_nearest
 from ..point_actions import box_distance2, nearest_in_refs
 
@@ -161,6 +161,6 @@ def grid_nearest(lo, hi, res, cell_size, cell_first, cell_prims, kind, geom, poi
                   np.zeros(0, dtype=np.int64))
     pad = 1e-9 * float(np.abs(lo).max() + np.abs(hi).max() + (hi - lo).max())
     grid_nearest_kernel(lo, res, cell_size, cell_first, cell_prims, cell_root, *forest, *nested, kind, geom, pad,
-                        points, limit_d2, np.empty((rows, bvh_depth + 2), dtype=np.int32),
-                        np.empty((rows, bvh_depth + 2)), np.empty((rows, len(nested[1]) + 1), dtype=np.int64),
+                        points, limit_d2, thread_rows((rows, bvh_depth + 2), np.int32),
+                        thread_rows((rows, bvh_depth + 2)), thread_rows((rows, len(nested[1]) + 1), np.int64),
                         out_d2, out_prim)

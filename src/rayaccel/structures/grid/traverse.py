@@ -23,6 +23,7 @@ import numpy as np
 from ..._jit import chunk_kernel, inline_kernel, kernel
 from ...geometry.box import clip_to_box
 from ...geometry.primitive import ray_setup
+from ...rays import ray_limit, result_row
 from ..actions import finish_ray, intersect_references
 
 __all__ = ["axis_start", "dda_step", "grid_trace_kernel"]
@@ -72,17 +73,20 @@ def grid_trace_kernel(ray_first, ray_end, tid, grid_lo, grid_hi, res, cell_size,
     nx, ny = res[0], res[1]
     count_work = work.shape[0] > 0
     for i in range(ray_first, ray_end):
+        row = result_row(hit_slot, i)
+        ray_t_min, ray_t_max = ray_limit(t_min, i), ray_limit(t_max, i)
         ox, oy, oz = origins[i, 0], origins[i, 1], origins[i, 2]
         dx, dy, dz = directions[i, 0], directions[i, 1], directions[i, 2]
-        t_enter, t_exit = clip_to_box(grid_lo, grid_hi, ox, oy, oz, dx, dy, dz, t_min[i], t_max[i])
+        t_enter, t_exit = clip_to_box(grid_lo, grid_hi, ox, oy, oz, dx, dy, dz, ray_t_min, ray_t_max)
         if t_enter > t_exit:
+            finish_ray(action, row, np.inf, -1, 0.0, 0.0)
             continue
         ray = ray_setup(ox, oy, oz, dx, dy, dz)
         cx, step_x, next_x, delta_x = axis_start(ox, dx, t_enter, grid_lo[0], cell_size[0], res[0])
         cy, step_y, next_y, delta_y = axis_start(oy, dy, t_enter, grid_lo[1], cell_size[1], res[1])
         cz, step_z, next_z, delta_z = axis_start(oz, dz, t_enter, grid_lo[2], cell_size[2], res[2])
         stamp = ray_id_base + i
-        best_t = t_max[i]
+        best_t = ray_t_max
         best_prim = -1
         best_u = 0.0
         best_v = 0.0
@@ -93,8 +97,8 @@ def grid_trace_kernel(ray_first, ray_end, tid, grid_lo, grid_hi, res, cell_size,
             n_cells += 1
             flat = cx + nx * (cy + ny * cz)
             best_t, best_prim, best_u, best_v, n_tests, n_skips = intersect_references(
-                action, hit_slot[i], cell_first[flat], cell_first[flat + 1], cell_prims, mailbox, tid, stamp, kind,
-                geom, ray, t_min[i], best_t, best_prim, best_u, best_v, n_tests, n_skips, any_hit)
+                action, row, cell_first[flat], cell_first[flat + 1], cell_prims, mailbox, tid, stamp, kind,
+                geom, ray, ray_t_min, best_t, best_prim, best_u, best_v, n_tests, n_skips, any_hit)
             if any_hit and best_prim >= 0:
                 break
             cell_exit = min(next_x, next_y, next_z)
@@ -104,9 +108,9 @@ def grid_trace_kernel(ray_first, ray_end, tid, grid_lo, grid_hi, res, cell_size,
                                                                   step_z, delta_x, delta_y, delta_z, res)
             if not inside:
                 break
-        finish_ray(action, hit_slot[i], best_t, best_prim, best_u, best_v)
+        finish_ray(action, row, best_t, best_prim, best_u, best_v)
         if count_work:
-            work[hit_slot[i], 0] = n_cells
-            work[hit_slot[i], 1] = n_tests
-            work[hit_slot[i], 2] = n_skips
-            work[hit_slot[i], 3] = n_cells
+            work[row, 0] = n_cells
+            work[row, 1] = n_tests
+            work[row, 2] = n_skips
+            work[row, 3] = n_cells

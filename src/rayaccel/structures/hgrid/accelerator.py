@@ -7,6 +7,7 @@ import time
 import numba
 import numpy as np
 
+from ..._jit import thread_rows
 from ..._validate import check_number
 from ...stats import box_area, surface_area_stats
 from ..base import Accelerator, walk_rays
@@ -64,8 +65,8 @@ class HierarchicalGrid(Accelerator):
         h = self.hgrid
         rows = numba.config.NUMBA_NUM_THREADS
         levels = int(h.grid_level.max()) + 1
-        saved_int = np.empty((rows, levels, 7), dtype=np.int64)
-        saved_float = np.empty((rows, levels, 7))
+        saved_int = thread_rows((rows, levels, 7), np.int64)
+        saved_float = thread_rows((rows, levels, 7))
         with self._mailboxes_for(action).lend(len(batch.origins)) as (mailbox, base):
             walk_rays(hgrid_trace_kernel, len(batch.origins), h.lo, h.hi, h.grid_lo, h.grid_res, h.grid_cell_size,
                       h.grid_cell_base, h.cell_child, h.cell_first, h.cell_prims, self.scene.kind, self.scene.geometry,

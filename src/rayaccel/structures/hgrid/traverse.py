@@ -13,9 +13,12 @@ level; one mailbox stamp per ray serves all levels.
 
 from __future__ import annotations
 
+import numpy as np
+
 from ..._jit import chunk_kernel
 from ...geometry.box import clip_to_box
 from ...geometry.primitive import ray_setup
+from ...rays import ray_limit, result_row
 from ..actions import finish_ray, intersect_references
 from ..grid.traverse import axis_start, dda_step
 
@@ -31,14 +34,17 @@ def hgrid_trace_kernel(ray_first, ray_end, tid, lo, hi, grid_lo, grid_res, grid_
     (threads, levels, 7) hold the outer walks' DDA states; ``mailbox`` as in the uniform grid."""
     count_work = work.shape[0] > 0
     for i in range(ray_first, ray_end):
+        row = result_row(hit_slot, i)
+        ray_t_min, ray_t_max = ray_limit(t_min, i), ray_limit(t_max, i)
         ox, oy, oz = origins[i, 0], origins[i, 1], origins[i, 2]
         dx, dy, dz = directions[i, 0], directions[i, 1], directions[i, 2]
-        t_enter, stretch_end = clip_to_box(lo, hi, ox, oy, oz, dx, dy, dz, t_min[i], t_max[i])
+        t_enter, stretch_end = clip_to_box(lo, hi, ox, oy, oz, dx, dy, dz, ray_t_min, ray_t_max)
         if t_enter > stretch_end:
+            finish_ray(action, row, np.inf, -1, 0.0, 0.0)
             continue
         ray = ray_setup(ox, oy, oz, dx, dy, dz)
         stamp = ray_id_base + i
-        best_t = t_max[i]
+        best_t = ray_t_max
         best_prim = -1
         best_u = 0.0
         best_v = 0.0
@@ -84,8 +90,8 @@ def hgrid_trace_kernel(ray_first, ray_end, tid, lo, hi, grid_lo, grid_res, grid_
                                                          grid_res[g, 2])
                 continue
             best_t, best_prim, best_u, best_v, n_tests, n_skips = intersect_references(
-                action, hit_slot[i], cell_first[cell], cell_first[cell + 1], cell_prims, mailbox, tid, stamp, kind,
-                geom, ray, t_min[i], best_t, best_prim, best_u, best_v, n_tests, n_skips, any_hit)
+                action, row, cell_first[cell], cell_first[cell + 1], cell_prims, mailbox, tid, stamp, kind,
+                geom, ray, ray_t_min, best_t, best_prim, best_u, best_v, n_tests, n_skips, any_hit)
             if (any_hit and best_prim >= 0) or (best_prim >= 0 and best_t <= cell_exit):
                 break
             done = False
@@ -119,9 +125,9 @@ def hgrid_trace_kernel(ray_first, ray_end, tid, lo, hi, grid_lo, grid_res, grid_
                 stretch_end = saved_float[tid, level, 6]
             if done:
                 break
-        finish_ray(action, hit_slot[i], best_t, best_prim, best_u, best_v)
+        finish_ray(action, row, best_t, best_prim, best_u, best_v)
         if count_work:
-            work[hit_slot[i], 0] = n_cells
-            work[hit_slot[i], 1] = n_tests
-            work[hit_slot[i], 2] = n_skips
-            work[hit_slot[i], 3] = n_leaves
+            work[row, 0] = n_cells
+            work[row, 1] = n_tests
+            work[row, 2] = n_skips
+            work[row, 3] = n_leaves

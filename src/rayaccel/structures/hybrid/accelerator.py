@@ -7,6 +7,7 @@ import time
 import numba
 import numpy as np
 
+from ..._jit import thread_rows
 from ..._validate import check_number
 from ...stats import box_area, surface_area_stats
 from ..base import Accelerator, walk_rays
@@ -71,8 +72,8 @@ class GridBvh(Accelerator):
     def _trace(self, batch, any_hit, action, work):
         h = self.hybrid
         rows = numba.config.NUMBA_NUM_THREADS
-        stack_node = np.empty((rows, self.bvh_depth + 2), dtype=np.int32)
-        stack_t = np.empty((rows, self.bvh_depth + 2))
+        stack_node = thread_rows((rows, self.bvh_depth + 2), np.int32)
+        stack_t = thread_rows((rows, self.bvh_depth + 2))
         with self._mailboxes_for(action).lend(len(batch.origins)) as (mailbox, base):
             walk_rays(grid_bvh_trace_kernel, len(batch.origins), h.lo, h.hi, h.res, h.cell_size, h.cell_first,
                       h.cell_prims, h.cell_root, h.node_box, h.node_first, h.node_count, self.scene.kind,

@@ -16,6 +16,7 @@ import numpy as np
 from ..._jit import chunk_kernel
 from ...geometry.box import clip_to_box
 from ...geometry.primitive import ray_setup
+from ...rays import ray_limit, result_row
 from ..actions import finish_ray, intersect_references
 from ..base import EXIT_MARGIN
 from ..bvh.traverse import enter_box
@@ -33,10 +34,13 @@ def grid_bvh_trace_kernel(ray_first, ray_end, tid, lo, hi, res, cell_size, cell_
     nx, ny, nz = res[0], res[1], res[2]
     count_work = work.shape[0] > 0
     for i in range(ray_first, ray_end):
+        row = result_row(hit_slot, i)
+        ray_t_min, ray_t_max = ray_limit(t_min, i), ray_limit(t_max, i)
         ox, oy, oz = origins[i, 0], origins[i, 1], origins[i, 2]
         dx, dy, dz = directions[i, 0], directions[i, 1], directions[i, 2]
-        t_enter, t_exit = clip_to_box(lo, hi, ox, oy, oz, dx, dy, dz, t_min[i], t_max[i])
+        t_enter, t_exit = clip_to_box(lo, hi, ox, oy, oz, dx, dy, dz, ray_t_min, ray_t_max)
         if t_enter > t_exit:
+            finish_ray(action, row, np.inf, -1, 0.0, 0.0)
             continue
         ray = ray_setup(ox, oy, oz, dx, dy, dz)
         ix, iy, iz = 1.0 / dx, 1.0 / dy, 1.0 / dz
@@ -45,8 +49,7 @@ def grid_bvh_trace_kernel(ray_first, ray_end, tid, lo, hi, res, cell_size, cell_
         cy, step_y, next_y, delta_y = axis_start(oy, dy, t_enter, lo[1], cell_size[1], ny)
         cz, step_z, next_z, delta_z = axis_start(oz, dz, t_enter, lo[2], cell_size[2], nz)
         stamp = ray_id_base + i
-        ray_t_min = t_min[i]
-        best_t, best_prim, best_u, best_v = t_max[i], -1, 0.0, 0.0
+        best_t, best_prim, best_u, best_v = ray_t_max, -1, 0.0, 0.0
         n_tests = 0
         n_skips = 0
         n_steps = 0
@@ -64,7 +67,7 @@ def grid_bvh_trace_kernel(ray_first, ray_end, tid, lo, hi, res, cell_size, cell_
             if root < 0:
                 n_leaves += 1
                 best_t, best_prim, best_u, best_v, n_tests, n_skips = intersect_references(
-                    action, hit_slot[i], cell_first[cell], cell_first[cell + 1], cell_prims, mailbox, tid, stamp, kind,
+                    action, row, cell_first[cell], cell_first[cell + 1], cell_prims, mailbox, tid, stamp, kind,
                     geom, ray, ray_t_min, best_t, best_prim, best_u, best_v, n_tests, n_skips, any_hit)
             else:
                 node = root
@@ -79,7 +82,7 @@ def grid_bvh_trace_kernel(ray_first, ray_end, tid, lo, hi, res, cell_size, cell_
                         n_leaves += 1
                         first = node_first[node]
                         best_t, best_prim, best_u, best_v, n_tests, n_skips = intersect_references(
-                            action, hit_slot[i], first, first + count, cell_prims, mailbox, tid, stamp, kind, geom,
+                            action, row, first, first + count, cell_prims, mailbox, tid, stamp, kind, geom,
                             ray, ray_t_min, best_t, best_prim, best_u, best_v, n_tests, n_skips, any_hit)
                         if any_hit and best_prim >= 0:
                             break
@@ -111,9 +114,9 @@ def grid_bvh_trace_kernel(ray_first, ray_end, tid, lo, hi, res, cell_size, cell_
             if not inside:
                 break
             t_cell = cell_exit
-        finish_ray(action, hit_slot[i], best_t, best_prim, best_u, best_v)
+        finish_ray(action, row, best_t, best_prim, best_u, best_v)
         if count_work:
-            work[hit_slot[i], 0] = n_steps
-            work[hit_slot[i], 1] = n_tests
-            work[hit_slot[i], 2] = n_skips
-            work[hit_slot[i], 3] = n_leaves
+            work[row, 0] = n_steps
+            work[row, 1] = n_tests
+            work[row, 2] = n_skips
+            work[row, 3] = n_leaves

@@ -23,7 +23,7 @@ import numba
 import numpy as np
 from numba import prange
 
-from ..._jit import inline_kernel, kernel, parallel_kernel, thread_id
+from ..._jit import inline_kernel, kernel, parallel_kernel, thread_id, thread_rows
 
 __all__ = ["instance_candidates", "object_rays", "merge_hits"]
 
@@ -110,7 +110,7 @@ def instance_candidates(top, max_depth, origins, directions, t_min, t_max):
     instances ``instance[offsets[i]:offsets[i + 1]]`` at ``entry[...]``, nearest first;
     ``top`` is ``(node_box, node_first, node_count, prim_order)``."""
     n = len(origins)
-    stack = np.empty((numba.config.NUMBA_NUM_THREADS, max_depth + 2), dtype=np.int64)
+    stack = thread_rows((numba.config.NUMBA_NUM_THREADS, max_depth + 2), np.int64)
     offsets = np.zeros(n + 1, dtype=np.int64)
     nodes_visited = np.zeros(n, dtype=np.int64)
     empty_i, empty_f = np.zeros(0, np.int64), np.zeros(0)

@@ -9,7 +9,7 @@ from concurrent.futures import ThreadPoolExecutor
 import numba
 import numpy as np
 
-from ..._jit import kernel, thread_count
+from ..._jit import kernel, thread_count, thread_rows
 from ..._validate import check_number
 from ...stats import box_area, surface_area_stats
 from ..base import Accelerator, walk_rays
@@ -229,8 +229,8 @@ class KdTree(Accelerator):
     def _trace(self, batch, any_hit, action, work):
         k = self.kd
         rows = numba.config.NUMBA_NUM_THREADS
-        stack_node = np.empty((rows, self.max_depth + 2), dtype=np.int32)
-        stack_t = np.empty((rows, self.max_depth + 2, 2))
+        stack_node = thread_rows((rows, self.max_depth + 2), np.int32)
+        stack_t = thread_rows((rows, self.max_depth + 2, 2))
         with self._mailboxes_for(action).lend(len(batch.origins)) as (mailbox, base):
             walk_rays(kdtree_trace_kernel, len(batch.origins), k.lo, k.hi, k.node_split, k.node_link, k.leaf_prims,
                       self.scene.kind, self.scene.geometry, *batch, any_hit, mailbox, base, stack_node, stack_t, action,
@@ -242,8 +242,8 @@ class KdTree(Accelerator):
         rows, depth = numba.config.NUMBA_NUM_THREADS, self.max_depth + 2
         pad = 1e-9 * float(np.abs(k.lo).max() + np.abs(k.hi).max() + (k.hi - k.lo).max())
         kdtree_nearest_kernel(k.lo, k.hi, k.node_split, k.node_link, k.leaf_prims, self.scene.kind,
-                              self.scene.geometry, pad, points, limit_d2, np.empty((rows, depth), dtype=np.int32),
-                              np.empty((rows, depth)), np.empty((rows, depth, 6)), out_d2, out_prim)
+                              self.scene.geometry, pad, points, limit_d2, thread_rows((rows, depth), np.int32),
+                              thread_rows((rows, depth)), thread_rows((rows, depth, 6)), out_d2, out_prim)
 
     @property
     def nbytes(self) -> int:

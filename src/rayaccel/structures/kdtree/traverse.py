@@ -22,9 +22,12 @@ Stacks are preallocated per thread, as deep as the tree.
 
 from __future__ import annotations
 
+import numpy as np
+
 from ..._jit import chunk_kernel, inline_kernel
 from ...geometry.box import clip_to_box
 from ...geometry.primitive import ray_setup
+from ...rays import ray_limit, result_row
 from ..actions import finish_ray, intersect_references
 from ..base import EXIT_MARGIN, settled_before
 from .layout import LEAF
@@ -46,15 +49,17 @@ def kdtree_trace_kernel(ray_first, ray_end, tid, lo, hi, node_split, node_link, 
     ``mailbox`` as in the uniform grid (empty for the closest hit, which needs none)."""
     count_work = work.shape[0] > 0
     for i in range(ray_first, ray_end):
+        row = result_row(hit_slot, i)
+        ray_t_min, ray_t_max = ray_limit(t_min, i), ray_limit(t_max, i)
         o = (origins[i, 0], origins[i, 1], origins[i, 2])
         d = (directions[i, 0], directions[i, 1], directions[i, 2])
-        t0, t1 = clip_to_box(lo, hi, o[0], o[1], o[2], d[0], d[1], d[2], t_min[i], t_max[i])
+        t0, t1 = clip_to_box(lo, hi, o[0], o[1], o[2], d[0], d[1], d[2], ray_t_min, ray_t_max)
         if t0 > t1:
+            finish_ray(action, row, np.inf, -1, 0.0, 0.0)
             continue
         inv = (1.0 / d[0], 1.0 / d[1], 1.0 / d[2])
         ray = ray_setup(o[0], o[1], o[2], d[0], d[1], d[2])
-        ray_t_min = t_min[i]
-        best_t = t_max[i]
+        best_t = ray_t_max
         best_prim = -1
         best_u = 0.0
         best_v = 0.0
@@ -99,7 +104,7 @@ def kdtree_trace_kernel(ray_first, ray_end, tid, lo, hi, node_split, node_link, 
             n_leaves += 1
             first = node_link[node, 0]
             best_t, best_prim, best_u, best_v, n_tests, _ = intersect_references(
-                action, hit_slot[i], first, first + (word >> 2), leaf_prims, mailbox, tid, ray_id_base + i, kind, geom,
+                action, row, first, first + (word >> 2), leaf_prims, mailbox, tid, ray_id_base + i, kind, geom,
                 ray, ray_t_min, best_t, best_prim, best_u, best_v, n_tests, 0, any_hit)
             if any_hit and best_prim >= 0:
                 break
@@ -114,8 +119,8 @@ def kdtree_trace_kernel(ray_first, ray_end, tid, lo, hi, node_split, node_link, 
                     t0 = stack_t[tid, sp, 0]
                     t1 = stack_t[tid, sp, 1]
                     break
-        finish_ray(action, hit_slot[i], best_t, best_prim, best_u, best_v)
+        finish_ray(action, row, best_t, best_prim, best_u, best_v)
         if count_work:
-            work[hit_slot[i], 0] = n_nodes
-            work[hit_slot[i], 1] = n_tests
-            work[hit_slot[i], 3] = n_leaves
+            work[row, 0] = n_nodes
+            work[row, 1] = n_tests
+            work[row, 3] = n_leaves

@@ -8,6 +8,7 @@ import time
 import numba
 import numpy as np
 
+from ..._jit import thread_rows
 from ..._validate import check_number
 from ...stats import box_area, surface_area_stats
 from ..base import Accelerator, walk_rays
@@ -67,8 +68,8 @@ class Octree(Accelerator):
     def _trace(self, batch, any_hit, action, work):
         o = self.tree
         rows = numba.config.NUMBA_NUM_THREADS
-        stack_node = np.empty((rows, 3 * self.max_depth + 4), dtype=np.int32)
-        stack_t = np.empty((rows, 3 * self.max_depth + 4, 2))
+        stack_node = thread_rows((rows, 3 * self.max_depth + 4), np.int32)
+        stack_t = thread_rows((rows, 3 * self.max_depth + 4, 2))
         with self._mailboxes_for(action).lend(len(batch.origins)) as (mailbox, base):
             walk_rays(octree_trace_kernel, len(batch.origins), o.lo, o.hi, o.node_center, o.node_link, o.leaf_prims,
                       self.scene.kind, self.scene.geometry, *batch, any_hit, mailbox, base, stack_node, stack_t, action,
@@ -80,8 +81,8 @@ class Octree(Accelerator):
         rows, depth = numba.config.NUMBA_NUM_THREADS, 7 * self.max_depth + 9
         pad = 1e-9 * float(np.abs(o.lo).max() + np.abs(o.hi).max() + (o.hi - o.lo).max())
         octree_nearest_kernel(o.lo, o.hi, o.node_center, o.node_link, o.leaf_prims, self.scene.kind,
-                              self.scene.geometry, pad, points, limit_d2, np.empty((rows, depth), dtype=np.int32),
-                              np.empty((rows, depth)), np.empty((rows, depth, 6)), out_d2, out_prim)
+                              self.scene.geometry, pad, points, limit_d2, thread_rows((rows, depth), np.int32),
+                              thread_rows((rows, depth)), thread_rows((rows, depth, 6)), out_d2, out_prim)
 
     def node_cells(self) -> np.ndarray:
         """(n_nodes, 6) cell of every node, lo and hi."""

@@ -18,6 +18,7 @@ import numpy as np
 from ..._jit import chunk_kernel, inline_kernel
 from ...geometry.box import clip_to_box
 from ...geometry.primitive import ray_setup
+from ...rays import ray_limit, result_row
 from ..actions import finish_ray, intersect_references
 from ..base import settled_before
 
@@ -48,15 +49,17 @@ def octree_trace_kernel(ray_first, ray_end, tid, lo, hi, node_center, node_link,
     ``mailbox`` as in the uniform grid (empty for the closest hit, which needs none)."""
     count_work = work.shape[0] > 0
     for i in range(ray_first, ray_end):
+        row = result_row(hit_slot, i)
+        ray_t_min, ray_t_max = ray_limit(t_min, i), ray_limit(t_max, i)
         ox, oy, oz = origins[i, 0], origins[i, 1], origins[i, 2]
         dx, dy, dz = directions[i, 0], directions[i, 1], directions[i, 2]
-        t0, t1 = clip_to_box(lo, hi, ox, oy, oz, dx, dy, dz, t_min[i], t_max[i])
+        t0, t1 = clip_to_box(lo, hi, ox, oy, oz, dx, dy, dz, ray_t_min, ray_t_max)
         if t0 > t1:
+            finish_ray(action, row, np.inf, -1, 0.0, 0.0)
             continue
         ix, iy, iz = 1.0 / dx, 1.0 / dy, 1.0 / dz
         ray = ray_setup(ox, oy, oz, dx, dy, dz)
-        ray_t_min = t_min[i]
-        best_t = t_max[i]
+        best_t = ray_t_max
         best_prim = -1
         best_u = 0.0
         best_v = 0.0
@@ -114,7 +117,7 @@ def octree_trace_kernel(ray_first, ray_end, tid, lo, hi, node_center, node_link,
                 n_leaves += 1
                 first = node_link[node, 0]
                 best_t, best_prim, best_u, best_v, n_tests, _ = intersect_references(
-                    action, hit_slot[i], first, first + count, leaf_prims, mailbox, tid, ray_id_base + i, kind, geom,
+                    action, row, first, first + count, leaf_prims, mailbox, tid, ray_id_base + i, kind, geom,
                     ray, ray_t_min, best_t, best_prim, best_u, best_v, n_tests, 0, any_hit)
                 if (any_hit and best_prim >= 0) or settled_before(best_prim, best_t, t1):
                     break
@@ -125,8 +128,8 @@ def octree_trace_kernel(ray_first, ray_end, tid, lo, hi, node_center, node_link,
                     node = stack_node[tid, sp]
                     t0 = stack_t[tid, sp, 0]
                     t1 = stack_t[tid, sp, 1]
-        finish_ray(action, hit_slot[i], best_t, best_prim, best_u, best_v)
+        finish_ray(action, row, best_t, best_prim, best_u, best_v)
         if count_work:
-            work[hit_slot[i], 0] = n_nodes
-            work[hit_slot[i], 1] = n_tests
-            work[hit_slot[i], 3] = n_leaves
+            work[row, 0] = n_nodes
+            work[row, 1] = n_tests
+            work[row, 3] = n_leaves
