@@ -238,10 +238,10 @@ def thread_rows(shape, dtype=np.float64) -> np.ndarray:
     """Uninitialised per-thread scratch of ``shape`` (threads first) whose rows each start on a
     128-byte boundary, the second axis lengthened as needed: two threads writing their own rows
     never write into one cache line, nor into the pair of lines the adjacent-line prefetcher
-    fetches together. The eight-wide BVH walk writes its row of child entry distances at every
-    node; left to ``np.empty``, whose 16-byte alignment let the two threads' rows share a line
-    in some processes and not in others, the forest's shadow rays on two threads took 20 ms in
-    one process and 15 ms in the next, both ways round between two copies of the same code."""
+    fetches together. ``np.empty`` aligns to 16 bytes only, so the two rows of the eight-wide
+    BVH walk's child entry distances (64 bytes each, written at every node) could share a line.
+    No speed-up was measured from this alone (the two-thread timings of this machine vary more
+    than false sharing on one line would explain); it removes the hazard, not a measured cost."""
     dtype = np.dtype(dtype)
     rows, width, *inner = shape
     item_bytes = dtype.itemsize * int(np.prod(inner, dtype=np.int64))
