@@ -85,7 +85,6 @@ def _walk(ray_first, ray_end, tid, root_box, records, links, prim_order, kind, g
         ray_t_min, ray_t_max = ray_limit(t_min, i), ray_limit(t_max, i)
         ox, oy, oz = origins[i, 0], origins[i, 1], origins[i, 2]
         dx, dy, dz = directions[i, 0], directions[i, 1], directions[i, 2]
-        ray = ray_setup(ox, oy, oz, dx, dy, dz)
         ix, iy, iz = 1.0 / dx, 1.0 / dy, 1.0 / dz
         origin = (ox, oy, oz)
         inv_dir = (ix, iy, iz)
@@ -102,7 +101,9 @@ def _walk(ray_first, ray_end, tid, root_box, records, links, prim_order, kind, g
         node = 0
         sp = 0
         if enter_box(root_box, 0, ox, oy, oz, ix, iy, iz, near_x, near_y, near_z, ray_t_min, best_t) == np.inf:
-            node = -1
+            finish_ray_in_mode(mode, action, row, best_t, best_prim, best_u, best_v)
+            continue
+        ray = ray_setup(ox, oy, oz, dx, dy, dz)
         while node >= 0:
             n_nodes += 1
             entered = enter_children(records, node, near_x, near_y, near_z, origin, inv_dir, ray_t_min, best_t,
