@@ -95,7 +95,8 @@ _NO_INTS = np.zeros(0, dtype=np.int64)
 
 
 def nearest_hit(t, prim, u, v) -> Action:
-    """The closest-hit (or any-hit) action writing into ``t``, ``prim``, ``u``, ``v`` (n,)."""
+    """The closest-hit (or any-hit) action writing into ``t``, ``prim``, ``u``, ``v`` (n,), or into
+    ``prim`` only when the three others are empty."""
     return Action(NEAREST, t, prim, u, v, _NO_INTS, _NO_INTS)
 
 
@@ -208,7 +209,8 @@ def visit_prim_in_mode(mode, action, row, kind, geom, k, prim, ray, t_min, best_
 def finish_ray(action, row, best_t, best_prim, best_u, best_v):
     """Write what the walk kept for the ray of output row ``row``: the closest hit, or a miss
     (``t = inf``, ``prim = -1``, ``u = v = NaN``; the other modes write as they go). Every ray
-    of a closest-hit walk ends here, so its output arrays need no filling beforehand."""
+    of a closest-hit walk ends here, so its output arrays need no filling beforehand. An action
+    whose ``t`` is empty takes the primitive only (``occluded``, which reads nothing else)."""
     finish_ray_in_mode(action.mode, action, row, best_t, best_prim, best_u, best_v)
 
 
@@ -216,14 +218,15 @@ def finish_ray(action, row, best_t, best_prim, best_u, best_v):
 def finish_ray_in_mode(mode, action, row, best_t, best_prim, best_u, best_v):
     """:func:`finish_ray` with the action's mode given apart (see :func:`visit_prim_in_mode`)."""
     if mode == NEAREST:
-        hit = best_prim >= 0
-        t = best_t if hit else np.inf
-        u = best_u if hit else np.nan
-        v = best_v if hit else np.nan
-        action.t[row] = t
         action.prim[row] = best_prim
-        action.u[row] = u
-        action.v[row] = v
+        if action.t.shape[0] > 0:
+            hit = best_prim >= 0
+            t = best_t if hit else np.inf
+            u = best_u if hit else np.nan
+            v = best_v if hit else np.nan
+            action.t[row] = t
+            action.u[row] = u
+            action.v[row] = v
 
 
 @inline_kernel

@@ -131,7 +131,7 @@ class Accelerator(PointQueries):
 
     def _occluded(self, origins, directions, t_min, t_max, reorder) -> np.ndarray:
         """:meth:`occluded` on array inputs (scenes of instances override it)."""
-        return self._cast(origins, directions, t_min, t_max, True, False, reorder)[2] >= 0
+        return self._cast(origins, directions, t_min, t_max, True, False, reorder, prim_only=True)[2] >= 0
 
     def count(self, origins, directions, t_min=0.0, t_max=np.inf, *, reorder=True) -> np.ndarray:
         """(n,) int64: how many times each ray crosses the scene within ``[t_min, t_max]``.
@@ -290,13 +290,14 @@ class Accelerator(PointQueries):
             f"scene with ra.build(scene, {self.method!r})"
         )
 
-    def _cast(self, origins, directions, t_min, t_max, any_hit, counters, reorder):
+    def _cast(self, origins, directions, t_min, t_max, any_hit, counters, reorder, prim_only=False):
         """Validate the rays and trace them: ``(rays, t, prim, u, v, work)``, each in the order given.
         The kernels write every ray's row of ``t``, ``prim``, ``u`` and ``v``
-        (:func:`.actions.finish_ray`), so these start empty."""
+        (:func:`.actions.finish_ray`), so these start empty; ``prim`` only when ``prim_only``
+        (``t``, ``u``, ``v`` are then empty)."""
         rays = prepare_rays(origins, directions, t_min, t_max, compact=True)
         n = len(rays.origins)
-        t, u, v = np.empty(n), np.empty(n), np.empty(n)
+        t, u, v = (np.empty(0 if prim_only else n) for _ in range(3))
         prim = np.empty(n, dtype=np.int64)
         work = np.zeros((n if counters else 0, WORK_COLUMNS), dtype=np.int64)
         if n:
