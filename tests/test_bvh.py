@@ -19,7 +19,8 @@ from hypothesis import strategies as st
 
 import rayaccel as ra
 from rayaccel.geometry.kdop import KDOP_NORMALS
-from rayaccel.structures.bvh.wide import WIDTH
+from rayaccel.structures.bvh.nodes import node_depths
+from rayaccel.structures.bvh.wide import WIDTH, wide_records
 
 BUILDERS = [m for m in ra.methods() if m.startswith("bvh-")]
 BOUNDS = ["aabb", "sphere", "kdop"]
@@ -315,3 +316,38 @@ def test_bvh_queries_leave_the_scene_without_float64_rows(small_dragon):
     accel.closest_point(origins)
     accel.signed_distance(origins)
     assert "geometry" not in vars(mesh)
+
+
+@pytest.mark.parametrize("method", ["bvh-binned", "bvh-lbvh", "bvh-agglomerative"])
+@pytest.mark.parametrize("scene_name", ["small_dragon", "spheres"])
+def test_eight_wide_bvh_recovers_its_binary_tree_exactly(scene_name, method, request):
+    """A BVH walked eight-wide keeps no binary tree after its build; the one it recovers
+    (:mod:`rayaccel.structures.bvh.binary_from_wide`) is the build's, node for node up to
+    numbering: the same leaves with the same boxes, the same inner boxes, depth and SAH cost."""
+    scene = request.getfixturevalue(scene_name)
+    wide = ra.build(scene, method, traversal_cost=2.0)
+    binary = ra.build(scene, method, traversal_cost=2.0, width=2).bvh
+    assert wide._binary is None and wide._wide_tree is None
+    recovered = wide.bvh
+    assert recovered.n_nodes == binary.n_nodes and wide.max_depth == int(node_depths(recovered.node_first,
+                                                                                     recovered.node_count).max())
+
+    def leaves(tree):
+        leaf = tree.node_count > 0
+        rows = np.column_stack((tree.node_first[leaf], tree.node_count[leaf], tree.node_box[leaf]))
+        return rows[np.lexsort(rows.T[::-1])]
+
+    np.testing.assert_array_equal(leaves(recovered), leaves(binary))
+    np.testing.assert_array_equal(np.sort(recovered.node_box, axis=0), np.sort(binary.node_box, axis=0))
+    np.testing.assert_array_equal(recovered.prim_order, binary.prim_order)
+    assert wide.sah_cost() == pytest.approx(ra.build(scene, method, traversal_cost=2.0, width=2).sah_cost(), rel=1e-12)
+    slots, child_wide = wide._wide_tree
+    np.testing.assert_array_equal(wide_records(recovered.node_box, recovered.node_first, recovered.node_count,
+                                               (slots, child_wide)), wide.wide)
+
+
+def test_single_leaf_tree_recovers_its_binary_tree():
+    mesh = ra.TriangleMesh(np.eye(3), np.array([[0, 1, 2]]))
+    accel = ra.build(mesh, "bvh-binned")
+    assert accel.bvh.n_nodes == 1 and accel.bvh.node_count[0] == 1
+    np.testing.assert_array_equal(accel.closest_point(np.zeros((1, 3))).prim, [0])

@@ -14,13 +14,14 @@ from ...geometry.kdop import KDOP_NORMALS, kdop_surface_areas
 from ...stats import surface_area_stats
 from ..actions import NEAREST
 from ..base import Accelerator, walk_rays
+from .binary_from_wide import binary_from_wide, slot_depths
 from .build_ploc import build_ploc
 from .build_top_down import MORTON, OBJECT_MEDIAN, SAH_BINNED, SAH_SWEEP, SPATIAL_MEDIAN, build_top_down
 from .fast_winding import winding_moments
 from .layout import BvhArrays, node_rows, pack_nodes
 from .nearest import bvh_nearest_kernel
 from .nodes import box_surface_areas, node_depths, sah_cost
-from .refit import refit_bvh
+from .refit import refit_bvh, refit_geometry_boxes
 from .split_morton import morton_codes
 from .traverse import BOX, KDOP, SPHERE_VOLUME, bvh_trace_kernel
 from .traverse_wide import wide_crossings_kernel, wide_nearest_kernel
@@ -111,19 +112,23 @@ class BoundingVolumeHierarchy(Accelerator):
         self.max_depth = int(node_depths(first, count).max())
         self.build_seconds = time.perf_counter() - start
 
-    def _pack_for_traversal(self, box, first, count, order, pad, same_tree=False):
-        """Set :attr:`bvh` to the binary tree (boxes already grown by ``pad``) and derive from it
-        and :attr:`geometry` every array the traversal reads. The build, :meth:`refit` and
+    def _pack_for_traversal(self, box, first, count, order, pad, same_tree=False, keep_binary=False):
+        """Derive from the binary tree (boxes already grown by ``pad``) and :attr:`geometry`
+        every array the traversal reads. The build, :meth:`refit` and
         :func:`rayaccel.load_accelerator` all go through here; ``same_tree`` (a refit, or a load
         that read the collapse from the file) keeps the wide collapse in ``_wide_tree`` and
-        packs only its boxes."""
+        packs only its boxes. A BVH walked eight-wide then keeps no binary tree unless
+        ``keep_binary`` (a refit, whose tree the next refit reuses): :attr:`bvh` recovers it
+        when asked (:mod:`.binary_from_wide`)."""
         self.pad = pad
         self._winding_cache = None
         self._caps_cache = None
         bounds = self.options["bounds"]
         wide = bounds == "aabb" and self.options["width"] == WIDTH
         records = pack_nodes(box[:1], first[:1], count[:1]) if wide else pack_nodes(box, first, count)
-        self.bvh = BvhArrays(box, first, count, order, records)
+        self.prim_order = order
+        self.root_record = records
+        self._binary = BvhArrays(box, first, count, order, records)
         if bounds == "kdop":
             self.volume = fit_kdops(self.scene.kind, layout_rows(self.geometry), first, count, KDOP_NORMALS)
             self.volume[:, :7] -= 2.0 * pad
@@ -137,6 +142,25 @@ class BoundingVolumeHierarchy(Accelerator):
         if wide and not same_tree:
             self._wide_tree = wide_tree(box, first, count)
         self.wide = wide_records(box, first, count, self._wide_tree) if wide else None
+        if wide:
+            self._slot_depths = slot_depths(*self._wide_tree, node_depths(first, count))
+            if not keep_binary:
+                self._binary = self._wide_tree = None
+
+    @property
+    def bvh(self) -> BvhArrays:
+        """The binary tree (:mod:`.layout`): kept by a BVH walked two-wide; for one walked eight-wide,
+        recovered from the wide records on first use (point queries, statistics, refit, saving)
+        and kept from then on, together with the wide collapse in ``_wide_tree``."""
+        if self._binary is None:
+            first, count, slots, child_wide = binary_from_wide(self.wide.view(np.int32), self._slot_depths)
+            box = np.empty((len(first), 6))
+            refit_geometry_boxes(self.scene.kind, self.geometry, first, count, box)
+            box[:, :3] -= self.pad
+            box[:, 3:] += self.pad
+            self._binary = BvhArrays(box, first, count, self.prim_order, self.root_record)
+            self._wide_tree = slots, child_wide
+        return self._binary
 
     def refit(self, vertices):
         """Move the primitives to new positions and refit the tree's volumes bottom-up
@@ -156,7 +180,6 @@ class BoundingVolumeHierarchy(Accelerator):
         return self.wide is None
 
     def _trace(self, batch, any_hit, action, work):
-        b = self.bvh
         rows = numba.config.NUMBA_NUM_THREADS
         if self.wide is not None:
             depth = (WIDTH - 1) * self.max_depth + 2
@@ -164,10 +187,11 @@ class BoundingVolumeHierarchy(Accelerator):
             stack_link, stack_count = thread_rows((rows, depth), np.int32), thread_rows((rows, depth), np.int32)
             stack_t = thread_rows((rows, depth))
             walk = wide_nearest_kernel if action.mode == NEAREST else wide_crossings_kernel
-            walk_rays(walk, len(batch.origins), b.node_records, self.wide, links, b.prim_order,
+            walk_rays(walk, len(batch.origins), self.root_record, self.wide, links, self.prim_order,
                       self.scene.kind, self.geometry, *batch, any_hit, stack_link, stack_count, stack_t,
                       thread_rows((rows, WIDTH)), action, work)
             return
+        b = self.bvh
         stack_node = thread_rows((rows, self.max_depth + 2), np.int32)
         stack_t = thread_rows((rows, self.max_depth + 2))
         walk_rays(bvh_trace_kernel, len(batch.origins), self.bounds_kind, b.node_records, self._volume_rows,
@@ -206,8 +230,9 @@ class BoundingVolumeHierarchy(Accelerator):
     @property
     def nbytes(self) -> int:
         """Bytes of the arrays that queries read: the tree, its bounding volumes and the primitives."""
-        return int(self.bvh.traversal_bytes + self._volume_rows.nbytes + layout_nbytes(self.geometry)
-                   + (self.wide.nbytes if self.wide is not None else 0))
+        if self.wide is None:
+            return int(self.bvh.traversal_bytes + self._volume_rows.nbytes + layout_nbytes(self.geometry))
+        return int(self.root_record.nbytes + self.wide.nbytes + self.prim_order.nbytes + layout_nbytes(self.geometry))
 
     def _structure_stats(self) -> dict:
         b = self.bvh

@@ -115,6 +115,6 @@ def refit_bvh(accel, vertices, padding) -> None:
     accel.scene = scene
     accel.geometry = geometry
     accel.scene_box = scene_lo, scene_hi
-    accel._pack_for_traversal(box, b.node_first, b.node_count, b.prim_order, pad, same_tree=True)
+    accel._pack_for_traversal(box, b.node_first, b.node_count, b.prim_order, pad, same_tree=True, keep_binary=True)
     accel.refits = getattr(accel, "refits", 0) + 1
     accel.refit_seconds = time.perf_counter() - start
