@@ -50,10 +50,14 @@ from ._jit import kernel, parallel_kernel, thread_count
 from .counting_sort import chunk_range, counts_to_starts
 from .rays import RayBatch, result_row
 
-__all__ = ["MIN_RAYS", "coherent_batch", "last_level_cache_bytes", "sorting_pays"]
+__all__ = ["MIN_RAYS", "MIN_PACKET_RAYS", "coherent_batch", "last_level_cache_bytes", "sorting_pays", "packets_pay"]
 
 MIN_RAYS = 1 << 15
 """Batches smaller than this are traced as given: the sort would cost more than it saves."""
+
+MIN_PACKET_RAYS = 1024
+"""Batches smaller than this are traced ray by ray (the coherence test itself would be most of the work)."""
+_PACKET_ANGLE = 0.02
 
 _DEFAULT_CACHE_BYTES = 32 << 20
 _BITS_PER_AXIS = 2
@@ -113,6 +117,35 @@ def _sort_rays(origins, directions, t_min, t_max, hit_slot, lo, scale, bits_per_
             out_hit_slot[place] = result_row(hit_slot, i)
 
 
+def _starts_close(batch: RayBatch, scene_lo, scene_hi) -> bool:
+    """Whether consecutive rays of an evenly spaced sample start within ``1/64`` of the scene's
+    size of each other, half of them or more."""
+    n = len(batch.origins)
+    sample = np.arange(0, n - 1, max(1, n // _SAMPLE))
+    steps = np.abs(batch.origins[sample + 1] - batch.origins[sample]).max(axis=1)
+    return bool(np.median(steps) <= _NEARBY * float(np.max(scene_hi - scene_lo)))
+
+
+def packets_pay(batch: RayBatch, scene_lo, scene_hi) -> bool:
+    """Whether a batch is coherent enough to trace in packets of consecutive rays: at least
+    :data:`MIN_PACKET_RAYS` rays, half of the sampled neighbours or more starting at the same
+    point (to within ``1e-9`` of the scene's size) and heading within :data:`_PACKET_ANGLE`
+    radians of each other, as a pinhole camera's rays through neighbouring pixels do.
+    Shadow rays from neighbouring hits to one light start apart, on the surface, where the
+    bounds of eight of them (:mod:`.structures.bvh.packet_slab`) cull little: the full dragon's
+    ran at 0.3 of their single-ray speed in packets."""
+    n = len(batch.origins)
+    if n < MIN_PACKET_RAYS:
+        return False
+    sample = np.arange(0, n - 1, max(1, n // _SAMPLE))
+    steps = np.abs(batch.origins[sample + 1] - batch.origins[sample]).max(axis=1)
+    if np.median(steps) > 1e-9 * float(np.max(scene_hi - scene_lo)):
+        return False
+    d0, d1 = batch.directions[sample], batch.directions[sample + 1]
+    cosine = (d0 * d1).sum(axis=1) / (np.linalg.norm(d0, axis=1) * np.linalg.norm(d1, axis=1))
+    return bool(np.median(cosine) >= np.cos(_PACKET_ANGLE))
+
+
 def coherent_batch(batch: RayBatch, scene_lo: np.ndarray, scene_hi: np.ndarray) -> RayBatch:
     """``batch`` sorted into coherent order (see the module docstring), each ray's
     ``hit_slot`` going with it; ``batch`` itself when it is coherent already, that is when
@@ -120,10 +153,9 @@ def coherent_batch(batch: RayBatch, scene_lo: np.ndarray, scene_hi: np.ndarray) 
     of each other (half of them or more), as camera rays and the shadow rays from
     their hits do."""
     n = len(batch.origins)
-    sample = np.arange(0, n - 1, max(1, n // _SAMPLE))
-    steps = np.abs(batch.origins[sample + 1] - batch.origins[sample]).max(axis=1)
-    if np.median(steps) <= _NEARBY * float(np.max(scene_hi - scene_lo)):
+    if _starts_close(batch, scene_lo, scene_hi):
         return batch
+    sample = np.arange(0, n - 1, max(1, n // _SAMPLE))
     origins = batch.origins[sample]
     lo, extent = origins.min(axis=0), np.ptp(origins, axis=0)
     scale = (1 << _BITS_PER_AXIS) / np.where(extent > 0.0, extent, 1.0)

@@ -11,6 +11,7 @@ from ..._jit import thread_count, thread_rows
 from ..._validate import check_number
 from ...geometry.gather import layout_nbytes, layout_rows
 from ...geometry.kdop import KDOP_NORMALS, kdop_surface_areas
+from ...ray_order import packets_pay
 from ...stats import surface_area_stats
 from ..actions import NEAREST
 from ..base import Accelerator, walk_rays
@@ -21,9 +22,11 @@ from .fast_winding import winding_moments
 from .layout import BvhArrays, node_rows, pack_nodes
 from .nearest import bvh_nearest_kernel
 from .nodes import box_surface_areas, node_depths, sah_cost
+from .packet_slab import BOUND_VALUES, PACKET
 from .refit import refit_bvh, refit_geometry_boxes
 from .split_morton import morton_codes
 from .traverse import BOX, KDOP, SPHERE_VOLUME, bvh_trace_kernel
+from .traverse_packet import LANE_ROWS, wide_packet_kernel
 from .traverse_wide import wide_crossings_kernel, wide_nearest_kernel
 from .volumes import fit_kdops, fit_spheres
 from .wide import WIDTH, wide_records, wide_tree
@@ -73,12 +76,17 @@ class BoundingVolumeHierarchy(Accelerator):
         against 7.4); 2 walks the binary tree. Statistics always
         describe the binary tree; the node counter counts the nodes walked.
         (Files saved with the former ``width=4`` load as ``width=8``.)
+    packets : bool, default True
+        With the eight-wide walk, trace a coherent batch (camera rays, shadow rays
+        from their hits to one light; :func:`rayaccel.ray_order.packets_pay`) in
+        packets of eight consecutive rays (:mod:`rayaccel.structures.bvh.traverse_packet`);
+        ``False`` walks every ray on its own. The hits are the same either way.
     """
 
     default_leaf_size = 4
 
     def __init__(self, scene, *, max_leaf_size=None, traversal_cost=None, intersection_cost=1.0, bounds="aabb",
-                 sphere_fit="primitives", width=WIDTH, **builder_options):
+                 sphere_fit="primitives", width=WIDTH, packets=True, **builder_options):
         max_leaf_size = self.default_leaf_size if max_leaf_size is None else max_leaf_size
         wide = bounds == "aabb" and width == WIDTH
         if traversal_cost is None:
@@ -98,6 +106,10 @@ class BoundingVolumeHierarchy(Accelerator):
             options["sphere_fit"] = sphere_fit
         if bounds == "aabb":
             options["width"] = width
+        if wide:
+            if not isinstance(packets, bool):
+                raise TypeError(f"packets must be True or False, got {packets!r}")
+            options["packets"] = packets
         super().__init__(scene, options)
         start = time.perf_counter()
         prim_bounds = self._primitive_bounds()
@@ -186,6 +198,14 @@ class BoundingVolumeHierarchy(Accelerator):
             links = self.wide.view(np.int32)
             stack_link, stack_count = thread_rows((rows, depth), np.int32), thread_rows((rows, depth), np.int32)
             stack_t = thread_rows((rows, depth))
+            if action.mode == NEAREST and work.shape[0] == 0 and self.options.get("packets", True) \
+                    and packets_pay(batch, *self.scene_box):
+                walk_rays(wide_packet_kernel, len(batch.origins), self.wide, links, self.prim_order,
+                          self.scene.kind, self.geometry, *batch, any_hit, stack_link, stack_count,
+                          thread_rows((rows, depth), np.int64), stack_t, thread_rows((rows, WIDTH)),
+                          thread_rows((rows, LANE_ROWS * PACKET)), thread_rows((rows, BOUND_VALUES)),
+                          thread_rows((rows, PACKET), np.int64), action)
+                return
             walk = wide_nearest_kernel if action.mode == NEAREST else wide_crossings_kernel
             walk_rays(walk, len(batch.origins), self.root_record, self.wide, links, self.prim_order,
                       self.scene.kind, self.geometry, *batch, any_hit, stack_link, stack_count, stack_t,

@@ -1,0 +1,146 @@
+"""Box tests of a ray packet against a wide node, in vector instructions.
+
+Two tests, after Wald, Slusallek, Benthin & Wagner ("Interactive Rendering with
+Coherent Ray Tracing", Eurographics 2001) and Boulos, Wald, Shirley et al. ("Packet-based
+Whitted and Distribution Ray Tracing", Graphics Interface 2007, interval arithmetic
+over a packet's rays):
+
+* :func:`enter_children_interval`: the packet as a whole against the node's eight child
+  boxes at once, as :func:`.wide_slab.enter_children` tests one ray: each slab distance
+  computed from the packet's extreme origin and the inverse direction at either end of
+  its range, whichever gives the nearer entry (farther exit). Rounding is monotone, so no
+  ray of the packet enters a box earlier or leaves it later than this bound says: a box
+  it culls, every one of its rays would cull on its own. It asks that the packet's rays
+  point to the same side along each axis (their inverse directions of one sign).
+* :func:`enter_child_lanes`: one child box against each ray of the packet, one vector
+  lane a ray, computing what the single-ray test computes for that ray, in float64; the
+  packet walk asks it of the leaves the packet enters, so that a ray tests only the
+  primitives of leaves it enters itself.
+
+Both keep the single-ray test's NaN-safe bounds (an origin on a slab plane with a zero
+direction component gives ``0 * inf``, which never tightens the interval).
+"""
+
+from __future__ import annotations
+
+from llvmlite import ir
+from numba import types
+from numba.extending import intrinsic
+
+from .wide import WIDTH
+
+__all__ = ["PACKET", "PACKET_ROWS", "BOUND_VALUES", "enter_children_interval", "enter_child_lanes"]
+
+PACKET = 8
+"""Rays per packet, one per vector lane."""
+PACKET_ROWS = 8
+"""Rows of :data:`PACKET` float64 in a packet's ray state: origin x, y, z, inverse
+direction x, y, z, ``t_min``, best distance so far."""
+BOUND_VALUES = 17
+"""Float64 values of a packet's bounds: for each axis five, its near block (0-2 for the
+box's ``lo``, 3-5 for ``hi``, as a float), the extreme origins that bound its rays' near and
+far distances, and the two ends of its rays' inverse directions; then the smallest
+``t_min`` and the farthest best distance of its rays."""
+
+
+def _splat(builder, value, vector_type):
+    vector = ir.Constant(vector_type, ir.Undefined)
+    for lane in range(vector_type.count):
+        vector = builder.insert_element(vector, value, ir.IntType(32)(lane))
+    return vector
+
+
+def _record_row(context, builder, records_type, records, node_type, node):
+    """Pointer to float32 column 0 of wide record ``node`` (records of ``8 * WIDTH`` floats)."""
+    view = context.make_array(records_type)(context, builder, records)
+    intp = context.get_value_type(types.intp)
+    return builder.gep(view.data, [builder.mul(context.cast(builder, node, node_type, types.intp),
+                                               ir.Constant(intp, 8 * WIDTH))])
+
+
+def _tighten(builder, near, far, enter, exit_):
+    enter = builder.select(builder.fcmp_ordered(">", near, enter), near, enter)
+    exit_ = builder.select(builder.fcmp_ordered("<", far, exit_), far, exit_)
+    return enter, exit_
+
+
+@intrinsic
+def enter_children_interval(typingctx, records, node, bounds, entry):
+    """The packet whose ``bounds`` (:data:`BOUND_VALUES`) are given against the child boxes of wide
+    ``node``: the mask of the children one of its rays may enter (bit ``c`` for child ``c``),
+    and in ``entry[c]`` a distance no larger than any of its rays' entry into child ``c``."""
+    signature = types.int64(records, node, bounds, entry)
+
+    def codegen(context, builder, sig, args):
+        array, node_index, bounds_array, entry_array = args
+        intp = context.get_value_type(types.intp)
+        floats = ir.VectorType(ir.FloatType(), WIDTH)
+        doubles = ir.VectorType(ir.DoubleType(), WIDTH)
+        row = _record_row(context, builder, sig.args[0], array, sig.args[1], node_index)
+        values = context.make_array(sig.args[2])(context, builder, bounds_array).data
+
+        def value(k):
+            return builder.load(builder.gep(values, [ir.Constant(intp, k)]))
+
+        def component(block):
+            pointer = builder.gep(row, [builder.mul(block, ir.Constant(intp, WIDTH))])
+            return builder.fpext(builder.load(builder.bitcast(pointer, floats.as_pointer()), align=32), doubles)
+
+        enter = _splat(builder, value(15), doubles)
+        exit_ = _splat(builder, value(16), doubles)
+        for axis in range(3):
+            near_block = builder.fptosi(value(5 * axis), intp)
+            far_block = builder.sub(ir.Constant(intp, 2 * axis + 3), near_block)
+            near_o, far_o, inv_low, inv_high = (_splat(builder, value(5 * axis + k), doubles) for k in range(1, 5))
+            near_gap = builder.fsub(component(near_block), near_o)
+            far_gap = builder.fsub(component(far_block), far_o)
+            near_low, near_high = builder.fmul(near_gap, inv_low), builder.fmul(near_gap, inv_high)
+            far_low, far_high = builder.fmul(far_gap, inv_low), builder.fmul(far_gap, inv_high)
+            near = builder.select(builder.fcmp_ordered("<", near_high, near_low), near_high, near_low)
+            far = builder.select(builder.fcmp_ordered(">", far_high, far_low), far_high, far_low)
+            enter, exit_ = _tighten(builder, near, far, enter, exit_)
+        entered = builder.fcmp_ordered("<=", enter, exit_)
+        missed = ir.Constant(doubles, [float("inf")] * WIDTH)
+        entry_view = context.make_array(sig.args[3])(context, builder, entry_array)
+        builder.store(builder.select(entered, enter, missed), builder.bitcast(entry_view.data, doubles.as_pointer()),
+                      align=8)
+        return builder.zext(builder.bitcast(entered, ir.IntType(WIDTH)), ir.IntType(64))
+
+    return signature, codegen
+
+
+@intrinsic
+def enter_child_lanes(typingctx, records, node, child, state, lanes):
+    """The rays of the packet in ``lanes`` (bit ``r`` for lane ``r``) that enter child box
+    ``child`` of wide ``node`` before their best hit, as a lane mask; ``state`` holds the
+    packet's :data:`PACKET_ROWS` rows of :data:`PACKET` float64."""
+    signature = types.int64(records, node, child, state, lanes)
+
+    def codegen(context, builder, sig, args):
+        array, node_index, child_index, state_array, lane_bits = args
+        intp = context.get_value_type(types.intp)
+        doubles = ir.VectorType(ir.DoubleType(), PACKET)
+        row = _record_row(context, builder, sig.args[0], array, sig.args[1], node_index)
+        child_value = context.cast(builder, child_index, sig.args[2], types.intp)
+        state_data = context.make_array(sig.args[3])(context, builder, state_array).data
+        vectors = builder.bitcast(state_data, doubles.as_pointer())
+        rows = [builder.load(builder.gep(vectors, [ir.Constant(intp, k)]), align=8) for k in range(PACKET_ROWS)]
+
+        def corner(block):
+            column = builder.add(ir.Constant(intp, WIDTH * block), child_value)
+            return _splat(builder, builder.fpext(builder.load(builder.gep(row, [column])), ir.DoubleType()), doubles)
+
+        enter, exit_ = rows[6], rows[7]
+        zero = ir.Constant(doubles, [0.0] * PACKET)
+        for axis in range(3):
+            lo, hi = corner(axis), corner(axis + 3)
+            origin, inverse = rows[axis], rows[axis + 3]
+            positive = builder.fcmp_ordered(">=", inverse, zero)
+            near = builder.fmul(builder.fsub(builder.select(positive, lo, hi), origin), inverse)
+            far = builder.fmul(builder.fsub(builder.select(positive, hi, lo), origin), inverse)
+            enter, exit_ = _tighten(builder, near, far, enter, exit_)
+        entered = builder.zext(builder.bitcast(builder.fcmp_ordered("<=", enter, exit_), ir.IntType(PACKET)),
+                               ir.IntType(64))
+        return builder.and_(entered, context.cast(builder, lane_bits, sig.args[4], types.int64))
+
+    return signature, codegen

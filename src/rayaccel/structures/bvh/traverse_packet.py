@@ -1,0 +1,189 @@
+"""Packets of eight rays through the eight-wide BVH (:mod:`.wide`), closest hit and any hit.
+
+Coherent rays, such as a camera's through neighbouring pixels or the shadow rays from
+their hits to one light, walk the upper tree together (Wald, Slusallek, Benthin &
+Wagner, "Interactive Rendering with Coherent Ray Tracing", Eurographics 2001; on wide
+nodes as Embree's packet traversal, Wald et al., ACM TOG 33(4), 2014). A packet fetches
+a node once and tests its eight child boxes against the packet's bounds at once
+(:func:`.packet_slab.enter_children_interval`: one test for all its rays, which culls
+a box only where each ray would), so the traversal's chain of dependent loads and tests
+is paid once for eight rays. A leaf the packet enters is tested against each of its
+rays (:func:`.packet_slab.enter_child_lanes`), and only the rays that enter it test its
+primitives, with the single-ray walk's test (the same hits, to the bit). A closest-hit
+packet takes the entered children nearest first and skips an entry popped beyond the
+farthest best hit of its rays, which also bounds its node tests; an any-hit packet drops
+each ray that found a hit, and stops when none is left.
+
+A packet whose rays point to both sides along some axis has no single near face there:
+its rays are walked as packets of one. Batches that :func:`rayaccel.ray_order.packets_pay`
+finds incoherent keep the single-ray walk of :mod:`.traverse_wide`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..._jit import chunk_kernel, prefetch
+from ...geometry.gather import prefetch_prim
+from ...geometry.primitive import ray_setup
+from ...rays import ray_limit, result_row
+from ..actions import NEAREST, finish_ray_in_mode, visit_prim_in_mode
+from .packet_slab import PACKET, enter_child_lanes, enter_children_interval
+from .wide import COUNT, LINK
+from .wide_slab import highest_bit
+
+__all__ = ["LANE_ROWS", "wide_packet_kernel"]
+
+_T_MIN = 6 * PACKET
+_BEST = 7 * PACKET
+_U = 8 * PACKET
+_V = 9 * PACKET
+LANE_ROWS = 10
+"""Rows of :data:`PACKET` float64 a packet keeps per thread: the ray state
+:func:`.packet_slab.enter_child_lanes` reads, then its rays' best ``u`` and ``v``."""
+
+
+@chunk_kernel
+def wide_packet_kernel(ray_first, ray_end, tid, records, links, prim_order, kind, geom, origins, directions, t_min,
+                       t_max, hit_slot, any_hit, stack_link, stack_count, stack_lanes, stack_t, entry, lanes_state,
+                       bounds_state, lanes_prim, action):
+    """Trace rays ``ray_first`` to ``ray_end - 1`` in packets of :data:`PACKET` consecutive rays
+    (the last one partial), with the stacks, child entries, lane state and packet bounds of
+    row ``tid``; ``geom`` in leaf order, ``links`` the records seen as int32 (see
+    :mod:`.traverse_wide`)."""
+    child_entry = entry[tid]
+    state = lanes_state[tid]
+    bounds = bounds_state[tid]
+    best_prim = lanes_prim[tid]
+    nearest_first = not any_hit
+    for packet_first in range(ray_first, ray_end, PACKET):
+        n_lanes = min(PACKET, ray_end - packet_first)
+        mixed = False
+        for r in range(PACKET):
+            i = packet_first + min(r, n_lanes - 1)
+            for axis in range(3):
+                inverse = 1.0 / directions[i, axis]
+                state[axis * PACKET + r] = origins[i, axis]
+                state[(axis + 3) * PACKET + r] = inverse
+                mixed |= (inverse >= 0.0) != (state[(axis + 3) * PACKET] >= 0.0)
+            state[_T_MIN + r] = ray_limit(t_min, i)
+            state[_BEST + r] = ray_limit(t_max, i)
+            best_prim[r] = -1
+            state[_U + r] = 0.0
+            state[_V + r] = 0.0
+        group = 1 if mixed else n_lanes
+        for group_first in range(0, n_lanes, group):
+            active = ((1 << group) - 1) << group_first
+            for axis in range(3):
+                positive = state[(axis + 3) * PACKET + group_first] >= 0.0
+                o_low, o_high = np.inf, -np.inf
+                inv_low, inv_high = np.inf, -np.inf
+                for r in range(group_first, group_first + group):
+                    o_low = min(o_low, state[axis * PACKET + r])
+                    o_high = max(o_high, state[axis * PACKET + r])
+                    inv_low = min(inv_low, state[(axis + 3) * PACKET + r])
+                    inv_high = max(inv_high, state[(axis + 3) * PACKET + r])
+                bounds[5 * axis] = axis if positive else axis + 3
+                bounds[5 * axis + 1] = o_high if positive else o_low
+                bounds[5 * axis + 2] = o_low if positive else o_high
+                bounds[5 * axis + 3] = inv_low
+                bounds[5 * axis + 4] = inv_high
+            packet_t_min = np.inf
+            farthest_best = -np.inf
+            for r in range(group_first, group_first + group):
+                packet_t_min = min(packet_t_min, state[_T_MIN + r])
+                farthest_best = max(farthest_best, state[_BEST + r])
+            bounds[15] = packet_t_min
+            bounds[16] = farthest_best
+            done = 0
+            node = 0
+            lanes = active
+            sp = 0
+            while True:
+                if node >= 0:
+                    children = enter_children_interval(records, node, bounds, child_entry)
+                    base = sp
+                    descend = -1
+                    while children != 0:
+                        c = highest_bit(children)
+                        children ^= 1 << c
+                        link = links[node, LINK + c]
+                        count = links[node, COUNT + c]
+                        child_lanes = lanes
+                        if count == 0:
+                            if children == 0 and sp == base:
+                                descend = link
+                                break
+                            for line in range(0, 64, 16):
+                                prefetch(records, link, line)
+                        else:
+                            child_lanes = enter_child_lanes(records, node, c, state, lanes)
+                            if child_lanes == 0:
+                                continue
+                            prefetch_prim(geom, link)
+                        t = child_entry[c]
+                        slot = sp
+                        if nearest_first:
+                            while slot > base and stack_t[tid, slot - 1] < t:
+                                stack_link[tid, slot] = stack_link[tid, slot - 1]
+                                stack_count[tid, slot] = stack_count[tid, slot - 1]
+                                stack_lanes[tid, slot] = stack_lanes[tid, slot - 1]
+                                stack_t[tid, slot] = stack_t[tid, slot - 1]
+                                slot -= 1
+                        stack_link[tid, slot] = link
+                        stack_count[tid, slot] = count
+                        stack_lanes[tid, slot] = child_lanes
+                        stack_t[tid, slot] = t
+                        sp += 1
+                    if descend >= 0:
+                        node = descend
+                        continue
+                node = -1
+                while sp > 0:
+                    sp -= 1
+                    lanes = stack_lanes[tid, sp] & ~done
+                    if lanes == 0 or stack_t[tid, sp] > bounds[16]:
+                        continue
+                    count = stack_count[tid, sp]
+                    if count == 0:
+                        node = stack_link[tid, sp]
+                        break
+                    first = stack_link[tid, sp]
+                    improved = False
+                    remaining = lanes
+                    while remaining != 0:
+                        r = highest_bit(remaining)
+                        remaining ^= 1 << r
+                        i = packet_first + r
+                        ray = ray_setup(origins[i, 0], origins[i, 1], origins[i, 2],
+                                        directions[i, 0], directions[i, 1], directions[i, 2])
+                        best_t = state[_BEST + r]
+                        prim_r = best_prim[r]
+                        best_u = state[_U + r]
+                        best_v = state[_V + r]
+                        for k in range(first, first + count):
+                            best_t, prim_r, best_u, best_v, stop = visit_prim_in_mode(
+                                NEAREST, action, 0, kind, geom, k, prim_order[k], ray, state[_T_MIN + r], best_t,
+                                prim_r, best_u, best_v, any_hit)
+                            if stop:
+                                done |= 1 << r
+                                break
+                        if prim_r != best_prim[r]:
+                            improved = True
+                            state[_BEST + r] = best_t
+                            best_prim[r] = prim_r
+                            state[_U + r] = best_u
+                            state[_V + r] = best_v
+                    if any_hit and done == active:
+                        sp = 0
+                        break
+                    if improved and nearest_first:
+                        farthest_best = -np.inf
+                        for r in range(group_first, group_first + group):
+                            farthest_best = max(farthest_best, state[_BEST + r])
+                        bounds[16] = farthest_best
+                if node < 0:
+                    break
+        for r in range(n_lanes):
+            finish_ray_in_mode(NEAREST, action, result_row(hit_slot, packet_first + r), state[_BEST + r],
+                               best_prim[r], state[_U + r], state[_V + r])

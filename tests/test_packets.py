@@ -1,0 +1,75 @@
+"""Packets of eight rays through the eight-wide BVH give each ray the hit brute force gives it."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from conftest import assert_same_hits, axis_parallel_rays, camera_rays, random_rays, vertex_and_edge_rays
+
+import rayaccel as ra
+from rayaccel.ray_order import MIN_PACKET_RAYS, packets_pay
+from rayaccel.rays import prepare_rays
+from rayaccel.structures.bvh import accelerator
+
+
+@pytest.fixture
+def every_batch_in_packets(monkeypatch):
+    """Incoherent batches too, so that packets of mixed directions, rays through vertices and
+    edges and axis-parallel rays walk the packet kernel."""
+    monkeypatch.setattr(accelerator, "packets_pay", lambda batch, lo, hi: True)
+
+
+def brute_and_packets(scene):
+    return ra.build(scene, "none"), ra.build(scene, "bvh-binned"), ra.build(scene, "bvh-binned", packets=False)
+
+
+@pytest.mark.parametrize("extra", range(8))
+def test_camera_packets_of_every_fill_match_brute_force(small_dragon, extra):
+    """A pinhole camera's rays are traced in packets without asking; batches of every length
+    modulo the packet size end in a partial packet."""
+    origins, directions = camera_rays(small_dragon, 40)
+    origins, directions = origins[:MIN_PACKET_RAYS + extra], directions[:MIN_PACKET_RAYS + extra]
+    b = small_dragon.bounds()
+    assert packets_pay(prepare_rays(origins, directions), b.scene_lo, b.scene_hi)
+    brute, packets, _ = brute_and_packets(small_dragon)
+    assert_same_hits(brute.intersect(origins, directions), packets.intersect(origins, directions))
+    np.testing.assert_array_equal(packets.occluded(origins, directions), brute.occluded(origins, directions))
+
+
+def test_incoherent_batches_are_not_packed(small_dragon):
+    b = small_dragon.bounds()
+    assert not packets_pay(prepare_rays(*random_rays(small_dragon, 5000)), b.scene_lo, b.scene_hi)
+    assert not packets_pay(prepare_rays(*camera_rays(small_dragon, 16)), b.scene_lo, b.scene_hi)
+
+
+@pytest.mark.parametrize("rays", ["random", "vertices_and_edges", "axis_parallel"])
+def test_packets_of_any_rays_match_brute_force(small_dragon, every_batch_in_packets, rays):
+    """Packets whose rays point every way (split into packets of one where an axis has both
+    signs), aimed exactly at vertices and edges, or along the axes with zero components of
+    either sign, with each ray's own interval."""
+    make = {"random": random_rays, "vertices_and_edges": vertex_and_edge_rays, "axis_parallel": axis_parallel_rays}
+    origins, directions = make[rays](small_dragon, 4099, seed=3)
+    rng = np.random.default_rng(5)
+    t_min = rng.choice([0.0, 0.2, 0.5], len(origins))
+    t_max = np.where(rng.random(len(origins)) < 0.5, np.inf, t_min + rng.uniform(0.0, 2.0, len(origins)))
+    brute, packets, single = brute_and_packets(small_dragon)
+    reference = brute.intersect(origins, directions, t_min, t_max)
+    assert_same_hits(reference, packets.intersect(origins, directions, t_min, t_max))
+    assert_same_hits(reference, single.intersect(origins, directions, t_min, t_max))
+    np.testing.assert_array_equal(packets.occluded(origins, directions, t_min, t_max), reference.hit)
+    np.testing.assert_array_equal(packets.intersect(origins, directions, t_min, t_max, any_hit=True).hit,
+                                  reference.hit)
+
+
+def test_sphere_packets_match_brute_force(spheres, every_batch_in_packets):
+    origins, directions = camera_rays(spheres, 48)
+    brute, packets, _ = brute_and_packets(spheres)
+    assert_same_hits(brute.intersect(origins, directions), packets.intersect(origins, directions))
+    np.testing.assert_array_equal(packets.occluded(origins, directions, 0.0, 3.0),
+                                  brute.occluded(origins, directions, 0.0, 3.0))
+
+
+def test_packets_option(small_dragon):
+    assert ra.build(small_dragon, "bvh-binned").options["packets"] is True
+    with pytest.raises(TypeError, match="packets"):
+        ra.build(small_dragon, "bvh-binned", packets="yes")
