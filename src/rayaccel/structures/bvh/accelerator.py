@@ -26,7 +26,7 @@ from .packet_slab import BOUND_VALUES, PACKET
 from .refit import refit_bvh, refit_geometry_boxes
 from .split_morton import morton_codes
 from .traverse import BOX, KDOP, SPHERE_VOLUME, bvh_trace_kernel
-from .traverse_packet import LANE_ROWS, wide_packet_kernel
+from .traverse_packet import LANE_ROWS, wide_packet_crossings_kernel, wide_packet_kernel
 from .traverse_wide import wide_crossings_kernel, wide_nearest_kernel
 from .volumes import fit_kdops, fit_spheres
 from .wide import WIDTH, wide_records, wide_tree
@@ -198,9 +198,9 @@ class BoundingVolumeHierarchy(Accelerator):
             links = self.wide.view(np.int32)
             stack_link, stack_count = thread_rows((rows, depth), np.int32), thread_rows((rows, depth), np.int32)
             stack_t = thread_rows((rows, depth))
-            if action.mode == NEAREST and work.shape[0] == 0 and self.options.get("packets", True) \
-                    and packets_pay(batch, *self.scene_box):
-                walk_rays(wide_packet_kernel, len(batch.origins), self.wide, links, self.prim_order,
+            if work.shape[0] == 0 and self.options.get("packets", True) and packets_pay(batch, *self.scene_box):
+                packet_walk = wide_packet_kernel if action.mode == NEAREST else wide_packet_crossings_kernel
+                walk_rays(packet_walk, len(batch.origins), self.wide, links, self.prim_order,
                           self.scene.kind, self.geometry, *batch, any_hit, stack_link, stack_count,
                           thread_rows((rows, depth), np.int64), stack_t, thread_rows((rows, WIDTH)),
                           thread_rows((rows, LANE_ROWS * PACKET)), thread_rows((rows, BOUND_VALUES)),

@@ -12,7 +12,9 @@ rays (:func:`.packet_slab.enter_child_lanes`), and only the rays that enter it t
 primitives, with the single-ray walk's test (the same hits, to the bit). A closest-hit
 packet takes the entered children nearest first and skips an entry popped beyond the
 farthest best hit of its rays, which also bounds its node tests; an any-hit packet drops
-each ray that found a hit, and stops when none is left.
+each ray that found a hit, and stops when none is left. Counting, listing and winding
+walks take the packets too (:func:`wide_packet_crossings_kernel`), each ray's crossings
+going to its own row.
 
 A packet whose rays point to both sides along some axis has no single near face there:
 its rays are walked as packets of one. Batches that :func:`rayaccel.ray_order.packets_pay`
@@ -23,7 +25,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..._jit import chunk_kernel, prefetch
+from ..._jit import chunk_kernel, inline_kernel, prefetch
 from ...geometry.gather import prefetch_prim
 from ...geometry.primitive import ray_setup
 from ...rays import ray_limit, result_row
@@ -32,7 +34,7 @@ from .packet_slab import PACKET, enter_child_lanes, enter_children_interval
 from .wide import COUNT, LINK
 from .wide_slab import highest_bit
 
-__all__ = ["LANE_ROWS", "wide_packet_kernel"]
+__all__ = ["LANE_ROWS", "wide_packet_kernel", "wide_packet_crossings_kernel"]
 
 _T_MIN = 6 * PACKET
 _BEST = 7 * PACKET
@@ -43,19 +45,20 @@ LANE_ROWS = 10
 :func:`.packet_slab.enter_child_lanes` reads, then its rays' best ``u`` and ``v``."""
 
 
-@chunk_kernel
-def wide_packet_kernel(ray_first, ray_end, tid, records, links, prim_order, kind, geom, origins, directions, t_min,
-                       t_max, hit_slot, any_hit, stack_link, stack_count, stack_lanes, stack_t, entry, lanes_state,
-                       bounds_state, lanes_prim, action):
+@inline_kernel
+def _packet_walk(ray_first, ray_end, tid, records, links, prim_order, kind, geom, origins, directions, t_min, t_max,
+                 hit_slot, any_hit, stack_link, stack_count, stack_lanes, stack_t, entry, lanes_state, bounds_state,
+                 lanes_prim, mode, action):
     """Trace rays ``ray_first`` to ``ray_end - 1`` in packets of :data:`PACKET` consecutive rays
     (the last one partial), with the stacks, child entries, lane state and packet bounds of
     row ``tid``; ``geom`` in leaf order, ``links`` the records seen as int32 (see
-    :mod:`.traverse_wide`)."""
+    :mod:`.traverse_wide`). Each primitive a ray meets gets the leaf action of ``mode``
+    (:mod:`..actions`)."""
     child_entry = entry[tid]
     state = lanes_state[tid]
     bounds = bounds_state[tid]
     best_prim = lanes_prim[tid]
-    nearest_first = not any_hit
+    nearest_first = not any_hit and mode == NEAREST
     for packet_first in range(ray_first, ray_end, PACKET):
         n_lanes = min(PACKET, ray_end - packet_first)
         mixed = False
@@ -161,14 +164,15 @@ def wide_packet_kernel(ray_first, ray_end, tid, records, links, prim_order, kind
                         prim_r = best_prim[r]
                         best_u = state[_U + r]
                         best_v = state[_V + r]
+                        row = result_row(hit_slot, i)
                         for k in range(first, first + count):
                             best_t, prim_r, best_u, best_v, stop = visit_prim_in_mode(
-                                NEAREST, action, 0, kind, geom, k, prim_order[k], ray, state[_T_MIN + r], best_t,
+                                mode, action, row, kind, geom, k, prim_order[k], ray, state[_T_MIN + r], best_t,
                                 prim_r, best_u, best_v, any_hit)
                             if stop:
                                 done |= 1 << r
                                 break
-                        if prim_r != best_prim[r]:
+                        if prim_r != best_prim[r] or best_t != state[_BEST + r]:
                             improved = True
                             state[_BEST + r] = best_t
                             best_prim[r] = prim_r
@@ -177,7 +181,7 @@ def wide_packet_kernel(ray_first, ray_end, tid, records, links, prim_order, kind
                     if any_hit and done == active:
                         sp = 0
                         break
-                    if improved and nearest_first:
+                    if improved and not any_hit:
                         farthest_best = -np.inf
                         for r in range(group_first, group_first + group):
                             farthest_best = max(farthest_best, state[_BEST + r])
@@ -185,5 +189,26 @@ def wide_packet_kernel(ray_first, ray_end, tid, records, links, prim_order, kind
                 if node < 0:
                     break
         for r in range(n_lanes):
-            finish_ray_in_mode(NEAREST, action, result_row(hit_slot, packet_first + r), state[_BEST + r],
+            finish_ray_in_mode(mode, action, result_row(hit_slot, packet_first + r), state[_BEST + r],
                                best_prim[r], state[_U + r], state[_V + r])
+
+
+@chunk_kernel
+def wide_packet_kernel(ray_first, ray_end, tid, records, links, prim_order, kind, geom, origins, directions, t_min,
+                       t_max, hit_slot, any_hit, stack_link, stack_count, stack_lanes, stack_t, entry, lanes_state,
+                       bounds_state, lanes_prim, action):
+    """The closest-hit and any-hit packet walk (an action of mode ``NEAREST``; the other modes'
+    code is pruned before it is compiled, as in :func:`.traverse_wide.wide_nearest_kernel`)."""
+    _packet_walk(ray_first, ray_end, tid, records, links, prim_order, kind, geom, origins, directions, t_min, t_max,
+                 hit_slot, any_hit, stack_link, stack_count, stack_lanes, stack_t, entry, lanes_state, bounds_state,
+                 lanes_prim, NEAREST, action)
+
+
+@chunk_kernel
+def wide_packet_crossings_kernel(ray_first, ray_end, tid, records, links, prim_order, kind, geom, origins,
+                                 directions, t_min, t_max, hit_slot, any_hit, stack_link, stack_count, stack_lanes,
+                                 stack_t, entry, lanes_state, bounds_state, lanes_prim, action):
+    """The packet walk for the other actions (counting, listing, winding), compiled at their first use."""
+    _packet_walk(ray_first, ray_end, tid, records, links, prim_order, kind, geom, origins, directions, t_min, t_max,
+                 hit_slot, any_hit, stack_link, stack_count, stack_lanes, stack_t, entry, lanes_state, bounds_state,
+                 lanes_prim, action.mode, action)
