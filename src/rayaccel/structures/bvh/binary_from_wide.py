@@ -31,20 +31,28 @@ _DEPTH_BITS = 3
 _DEEPEST = 2 ** _DEPTH_BITS - 1
 
 
-def slot_depths(slots: np.ndarray, child_wide: np.ndarray, node_depth: np.ndarray) -> np.ndarray:
+@kernel
+def slot_depths(slots, child_wide, node_depth):
     """(n_wide,) int32: for each wide node of a collapse ``(slots, child_wide)`` the depth of
     each used slot's binary node below the binary node the wide node stands for, three bits
     a slot (slot ``c`` in bits ``3 c`` to ``3 c + 2``); ``node_depth``: each binary node's
     depth in the binary tree."""
-    top = np.zeros(len(slots), dtype=np.int64)
-    inner = child_wide > 0
-    top[child_wide[inner]] = slots[inner]
-    used = slots >= 0
-    relative = np.where(used, node_depth[np.where(used, slots, 0)] - node_depth[top][:, None], 0)
-    if relative.max(initial=0) > _DEEPEST:
-        raise ValueError("a wide node's binary subtree is deeper than its eight slots allow")
-    shifts = _DEPTH_BITS * np.arange(WIDTH)
-    return (relative.astype(np.int64) << shifts).sum(axis=1).astype(np.int32)
+    n_wide = slots.shape[0]
+    top = np.zeros(n_wide, dtype=np.int64)
+    depths = np.zeros(n_wide, dtype=np.int32)
+    for wide in range(n_wide):
+        for c in range(WIDTH):
+            if child_wide[wide, c] > 0:
+                top[child_wide[wide, c]] = slots[wide, c]
+        packed = 0
+        for c in range(WIDTH):
+            if slots[wide, c] >= 0:
+                relative = node_depth[slots[wide, c]] - node_depth[top[wide]]
+                if relative > _DEEPEST:
+                    raise ValueError("a wide node's binary subtree is deeper than its eight slots allow")
+                packed |= relative << (_DEPTH_BITS * c)
+        depths[wide] = packed
+    return depths
 
 
 @kernel
