@@ -201,8 +201,8 @@ class BoundingVolumeHierarchy(Accelerator):
             if work.shape[0] == 0 and self.options.get("packets", True) and packets_pay(batch, *self.scene_box):
                 packet_walk = wide_packet_kernel if action.mode == NEAREST else wide_packet_crossings_kernel
                 walk_rays(packet_walk, len(batch.origins), self.wide, links, self.prim_order,
-                          self.scene.kind, self.geometry, *batch, any_hit, stack_link, stack_count,
-                          thread_rows((rows, depth), np.int64), stack_t, thread_rows((rows, WIDTH)),
+                          self.scene.kind, self.geometry, *batch, any_hit, stack_link, stack_count, stack_t,
+                          thread_rows((rows, WIDTH)),
                           thread_rows((rows, LANE_ROWS * PACKET)), thread_rows((rows, BOUND_VALUES)),
                           thread_rows((rows, PACKET), np.int64), action)
                 return

@@ -28,6 +28,7 @@ from numba import types
 from numba.extending import intrinsic
 
 from .wide import WIDTH
+from .wide_slab import entered_children, tighten_lanes
 
 __all__ = ["PACKET", "PACKET_ROWS", "BOUND_VALUES", "enter_children_interval", "enter_child_lanes"]
 
@@ -56,12 +57,6 @@ def _record_row(context, builder, records_type, records, node_type, node):
     intp = context.get_value_type(types.intp)
     return builder.gep(view.data, [builder.mul(context.cast(builder, node, node_type, types.intp),
                                                ir.Constant(intp, 8 * WIDTH))])
-
-
-def _tighten(builder, near, far, enter, exit_):
-    enter = builder.select(builder.fcmp_ordered(">", near, enter), near, enter)
-    exit_ = builder.select(builder.fcmp_ordered("<", far, exit_), far, exit_)
-    return enter, exit_
 
 
 @intrinsic
@@ -98,13 +93,8 @@ def enter_children_interval(typingctx, records, node, bounds, entry):
             far_low, far_high = builder.fmul(far_gap, inv_low), builder.fmul(far_gap, inv_high)
             near = builder.select(builder.fcmp_ordered("<", near_high, near_low), near_high, near_low)
             far = builder.select(builder.fcmp_ordered(">", far_high, far_low), far_high, far_low)
-            enter, exit_ = _tighten(builder, near, far, enter, exit_)
-        entered = builder.fcmp_ordered("<=", enter, exit_)
-        missed = ir.Constant(doubles, [float("inf")] * WIDTH)
-        entry_view = context.make_array(sig.args[3])(context, builder, entry_array)
-        builder.store(builder.select(entered, enter, missed), builder.bitcast(entry_view.data, doubles.as_pointer()),
-                      align=8)
-        return builder.zext(builder.bitcast(entered, ir.IntType(WIDTH)), ir.IntType(64))
+            enter, exit_ = tighten_lanes(builder, near, far, enter, exit_)
+        return entered_children(context, builder, sig.args[3], entry_array, enter, exit_)
 
     return signature, codegen
 
@@ -138,7 +128,7 @@ def enter_child_lanes(typingctx, records, node, child, state, lanes):
             positive = builder.fcmp_ordered(">=", inverse, zero)
             near = builder.fmul(builder.fsub(builder.select(positive, lo, hi), origin), inverse)
             far = builder.fmul(builder.fsub(builder.select(positive, hi, lo), origin), inverse)
-            enter, exit_ = _tighten(builder, near, far, enter, exit_)
+            enter, exit_ = tighten_lanes(builder, near, far, enter, exit_)
         entered = builder.zext(builder.bitcast(builder.fcmp_ordered("<=", enter, exit_), ir.IntType(PACKET)),
                                ir.IntType(64))
         return builder.and_(entered, context.cast(builder, lane_bits, sig.args[4], types.int64))

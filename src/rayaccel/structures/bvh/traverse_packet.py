@@ -25,17 +25,19 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..._jit import chunk_kernel, inline_kernel, prefetch
-from ...geometry.gather import prefetch_prim
+from ..._jit import chunk_kernel, inline_kernel
 from ...geometry.primitive import ray_setup
 from ...rays import ray_limit, result_row
 from ..actions import NEAREST, finish_ray_in_mode, visit_prim_in_mode
 from .packet_slab import PACKET, enter_child_lanes, enter_children_interval
+from .traverse_wide import push_child
 from .wide import COUNT, LINK
 from .wide_slab import highest_bit
 
 __all__ = ["LANE_ROWS", "wide_packet_kernel", "wide_packet_crossings_kernel"]
 
+_LANES_SHIFT = 16
+_COUNT_MASK = (1 << _LANES_SHIFT) - 1
 _T_MIN = 6 * PACKET
 _BEST = 7 * PACKET
 _U = 8 * PACKET
@@ -47,13 +49,13 @@ LANE_ROWS = 10
 
 @inline_kernel
 def _packet_walk(ray_first, ray_end, tid, records, links, prim_order, kind, geom, origins, directions, t_min, t_max,
-                 hit_slot, any_hit, stack_link, stack_count, stack_lanes, stack_t, entry, lanes_state, bounds_state,
+                 hit_slot, any_hit, stack_link, stack_count, stack_t, entry, lanes_state, bounds_state,
                  lanes_prim, mode, action):
     """Trace rays ``ray_first`` to ``ray_end - 1`` in packets of :data:`PACKET` consecutive rays
     (the last one partial), with the stacks, child entries, lane state and packet bounds of
-    row ``tid``; ``geom`` in leaf order, ``links`` the records seen as int32 (see
-    :mod:`.traverse_wide`). Each primitive a ray meets gets the leaf action of ``mode``
-    (:mod:`..actions`)."""
+    row ``tid``, each stack entry's lanes kept above its primitive count in ``stack_count``;
+    ``geom`` in leaf order, ``links`` the records seen as int32 (see :mod:`.traverse_wide`).
+    Each primitive a ray meets gets the leaf action of ``mode`` (:mod:`..actions`)."""
     child_entry = entry[tid]
     state = lanes_state[tid]
     bounds = bounds_state[tid]
@@ -117,37 +119,24 @@ def _packet_walk(ray_first, ray_end, tid, records, links, prim_order, kind, geom
                             if children == 0 and sp == base:
                                 descend = link
                                 break
-                            for line in range(0, 64, 16):
-                                prefetch(records, link, line)
                         else:
                             child_lanes = enter_child_lanes(records, node, c, state, lanes)
                             if child_lanes == 0:
                                 continue
-                            prefetch_prim(geom, link)
-                        t = child_entry[c]
-                        slot = sp
-                        if nearest_first:
-                            while slot > base and stack_t[tid, slot - 1] < t:
-                                stack_link[tid, slot] = stack_link[tid, slot - 1]
-                                stack_count[tid, slot] = stack_count[tid, slot - 1]
-                                stack_lanes[tid, slot] = stack_lanes[tid, slot - 1]
-                                stack_t[tid, slot] = stack_t[tid, slot - 1]
-                                slot -= 1
-                        stack_link[tid, slot] = link
-                        stack_count[tid, slot] = count
-                        stack_lanes[tid, slot] = child_lanes
-                        stack_t[tid, slot] = t
-                        sp += 1
+                        sp = push_child(records, geom, stack_link, stack_count, stack_t, tid, base, sp,
+                                        child_entry[c], link, count, count | (child_lanes << _LANES_SHIFT),
+                                        nearest_first)
                     if descend >= 0:
                         node = descend
                         continue
                 node = -1
                 while sp > 0:
                     sp -= 1
-                    lanes = stack_lanes[tid, sp] & ~done
+                    word = stack_count[tid, sp]
+                    lanes = (word >> _LANES_SHIFT) & ~done
                     if lanes == 0 or stack_t[tid, sp] > bounds[16]:
                         continue
-                    count = stack_count[tid, sp]
+                    count = word & _COUNT_MASK
                     if count == 0:
                         node = stack_link[tid, sp]
                         break
@@ -195,20 +184,20 @@ def _packet_walk(ray_first, ray_end, tid, records, links, prim_order, kind, geom
 
 @chunk_kernel
 def wide_packet_kernel(ray_first, ray_end, tid, records, links, prim_order, kind, geom, origins, directions, t_min,
-                       t_max, hit_slot, any_hit, stack_link, stack_count, stack_lanes, stack_t, entry, lanes_state,
+                       t_max, hit_slot, any_hit, stack_link, stack_count, stack_t, entry, lanes_state,
                        bounds_state, lanes_prim, action):
     """The closest-hit and any-hit packet walk (an action of mode ``NEAREST``; the other modes'
     code is pruned before it is compiled, as in :func:`.traverse_wide.wide_nearest_kernel`)."""
     _packet_walk(ray_first, ray_end, tid, records, links, prim_order, kind, geom, origins, directions, t_min, t_max,
-                 hit_slot, any_hit, stack_link, stack_count, stack_lanes, stack_t, entry, lanes_state, bounds_state,
+                 hit_slot, any_hit, stack_link, stack_count, stack_t, entry, lanes_state, bounds_state,
                  lanes_prim, NEAREST, action)
 
 
 @chunk_kernel
 def wide_packet_crossings_kernel(ray_first, ray_end, tid, records, links, prim_order, kind, geom, origins,
-                                 directions, t_min, t_max, hit_slot, any_hit, stack_link, stack_count, stack_lanes,
-                                 stack_t, entry, lanes_state, bounds_state, lanes_prim, action):
+                                 directions, t_min, t_max, hit_slot, any_hit, stack_link, stack_count, stack_t, entry,
+                                 lanes_state, bounds_state, lanes_prim, action):
     """The packet walk for the other actions (counting, listing, winding), compiled at their first use."""
     _packet_walk(ray_first, ray_end, tid, records, links, prim_order, kind, geom, origins, directions, t_min, t_max,
-                 hit_slot, any_hit, stack_link, stack_count, stack_lanes, stack_t, entry, lanes_state, bounds_state,
+                 hit_slot, any_hit, stack_link, stack_count, stack_t, entry, lanes_state, bounds_state,
                  lanes_prim, action.mode, action)

@@ -38,14 +38,15 @@ from .traverse import enter_box
 from .wide import COUNT, LINK
 from .wide_slab import enter_children, highest_bit
 
-__all__ = ["wide_nearest_kernel", "wide_crossings_kernel"]
+__all__ = ["wide_nearest_kernel", "wide_crossings_kernel", "push_child"]
 
 
 @inline_kernel
-def _push(records, geom, stack_link, stack_count, stack_t, tid, base, sp, t, link, count, nearest_first):
-    """Push a child the ray enters at ``t`` on the stack, whose entries from ``base`` on are this
-    node's children, below those nearer than it when ``nearest_first``; prefetch what popping it
-    will read: its record's four cache lines, or its first primitive."""
+def push_child(records, geom, stack_link, stack_count, stack_t, tid, base, sp, t, link, count, word, nearest_first):
+    """Push a child entered at ``t`` on the stack, whose entries from ``base`` on are this node's
+    children, below those nearer than it when ``nearest_first``; ``word`` goes into ``stack_count``
+    (the child's primitive count, which a packet walk extends by its lanes); prefetch what
+    popping it will read: its record's four cache lines, or its first primitive."""
     if count == 0:
         for line in range(0, 64, 16):
             prefetch(records, link, line)
@@ -59,7 +60,7 @@ def _push(records, geom, stack_link, stack_count, stack_t, tid, base, sp, t, lin
             stack_t[tid, slot] = stack_t[tid, slot - 1]
             slot -= 1
     stack_link[tid, slot] = link
-    stack_count[tid, slot] = count
+    stack_count[tid, slot] = word
     stack_t[tid, slot] = t
     return sp + 1
 
@@ -119,8 +120,9 @@ def _walk(ray_first, ray_end, tid, root_box, records, links, prim_order, kind, g
                     if entered == 0 and not nearest_first and links[node, COUNT + c] == 0:
                         node = links[node, LINK + c]
                         break
-                    sp = _push(records, geom, stack_link, stack_count, stack_t, tid, base, sp, child_entry[c],
-                               links[node, LINK + c], links[node, COUNT + c], nearest_first)
+                    count = links[node, COUNT + c]
+                    sp = push_child(records, geom, stack_link, stack_count, stack_t, tid, base, sp, child_entry[c],
+                                    links[node, LINK + c], count, count, nearest_first)
                     if entered == 0:
                         node = -1
                         break

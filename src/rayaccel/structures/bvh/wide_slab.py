@@ -32,7 +32,7 @@ from numba.extending import intrinsic
 
 from .wide import WIDTH
 
-__all__ = ["enter_children", "highest_bit"]
+__all__ = ["enter_children", "highest_bit", "tighten_lanes", "entered_children"]
 
 
 @intrinsic
@@ -75,16 +75,30 @@ def enter_children(typingctx, records, node, near_x, near_y, near_z, origin, inv
             far_block = builder.sub(ir.Constant(intp, 2 * axis + 3), near_block)
             near = builder.fmul(builder.fsub(component(near_block), o), inv)
             far = builder.fmul(builder.fsub(component(far_block), o), inv)
-            enter = builder.select(builder.fcmp_ordered(">", near, enter), near, enter)
-            exit_ = builder.select(builder.fcmp_ordered("<", far, exit_), far, exit_)
-        entered = builder.fcmp_ordered("<=", enter, exit_)
-        missed = ir.Constant(doubles, [float("inf")] * WIDTH)
-        entry_view = context.make_array(sig.args[9])(context, builder, entry_array)
-        builder.store(builder.select(entered, enter, missed), builder.bitcast(entry_view.data, doubles.as_pointer()),
-                      align=8)
-        return builder.zext(builder.bitcast(entered, ir.IntType(WIDTH)), ir.IntType(64))
+            enter, exit_ = tighten_lanes(builder, near, far, enter, exit_)
+        return entered_children(context, builder, sig.args[9], entry_array, enter, exit_)
 
     return signature, codegen
+
+
+def tighten_lanes(builder, near, far, enter, exit_):
+    """The IR of :func:`.traverse.tighten` on vectors: each lane's interval narrowed to a slab's
+    ``[near, far]``, a NaN bound (``0 * inf``) leaving it as it was."""
+    enter = builder.select(builder.fcmp_ordered(">", near, enter), near, enter)
+    exit_ = builder.select(builder.fcmp_ordered("<", far, exit_), far, exit_)
+    return enter, exit_
+
+
+def entered_children(context, builder, entry_type, entry_array, enter, exit_):
+    """The IR that ends a test of eight child boxes: stores each child's entry distance (``inf``
+    where the interval is empty) into the ``entry`` array and returns the mask of the entered."""
+    doubles = enter.type
+    entered = builder.fcmp_ordered("<=", enter, exit_)
+    missed = ir.Constant(doubles, [float("inf")] * WIDTH)
+    entry_view = context.make_array(entry_type)(context, builder, entry_array)
+    builder.store(builder.select(entered, enter, missed), builder.bitcast(entry_view.data, doubles.as_pointer()),
+                  align=8)
+    return builder.zext(builder.bitcast(entered, ir.IntType(WIDTH)), ir.IntType(64))
 
 
 @intrinsic
