@@ -77,10 +77,10 @@ class BoundingVolumeHierarchy(Accelerator):
         describe the binary tree; the node counter counts the nodes walked.
         (Files saved with the former ``width=4`` load as ``width=8``.)
     packets : bool, default True
-        With the eight-wide walk, trace a coherent batch (camera rays, shadow rays
-        from their hits to one light; :func:`rayaccel.ray_order.packets_pay`) in
+        With the eight-wide walk, trace a batch whose rays share an origin and head
+        alike, as a pinhole camera's do (:func:`rayaccel.ray_order.packets_pay`), in
         packets of eight consecutive rays (:mod:`rayaccel.structures.bvh.traverse_packet`);
-        ``False`` walks every ray on its own. The hits are the same either way.
+        ``False`` walks every ray on its own. The answers are the same either way.
     """
 
     default_leaf_size = 4

@@ -12,9 +12,9 @@ rays (:func:`.packet_slab.enter_child_lanes`), and only the rays that enter it t
 primitives, with the single-ray walk's test (the same hits, to the bit). A closest-hit
 packet takes the entered children nearest first and skips an entry popped beyond the
 farthest best hit of its rays, which also bounds its node tests; an any-hit packet drops
-each ray that found a hit, and stops when none is left. Counting, listing and winding
-walks take the packets too (:func:`wide_packet_crossings_kernel`), each ray's crossings
-going to its own row.
+each ray that found a hit, and stops when none is left. Counting and listing walks take
+the packets too (:func:`wide_packet_crossings_kernel`), each ray's crossings going to its
+own row.
 
 A packet whose rays point to both sides along some axis has no single near face there:
 its rays are walked as packets of one. Batches that :func:`rayaccel.ray_order.packets_pay`
@@ -197,7 +197,7 @@ def wide_packet_kernel(ray_first, ray_end, tid, records, links, prim_order, kind
 def wide_packet_crossings_kernel(ray_first, ray_end, tid, records, links, prim_order, kind, geom, origins,
                                  directions, t_min, t_max, hit_slot, any_hit, stack_link, stack_count, stack_t, entry,
                                  lanes_state, bounds_state, lanes_prim, action):
-    """The packet walk for the other actions (counting, listing, winding), compiled at their first use."""
+    """The packet walk for the other actions (counting, listing), compiled at their first use."""
     _packet_walk(ray_first, ray_end, tid, records, links, prim_order, kind, geom, origins, directions, t_min, t_max,
                  hit_slot, any_hit, stack_link, stack_count, stack_t, entry, lanes_state, bounds_state,
                  lanes_prim, action.mode, action)
