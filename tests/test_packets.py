@@ -31,7 +31,7 @@ def test_camera_packets_of_every_fill_match_brute_force(small_dragon, extra):
     origins, directions = origins[:MIN_PACKET_RAYS + extra], directions[:MIN_PACKET_RAYS + extra]
     b = small_dragon.bounds()
     assert packets_pay(prepare_rays(origins, directions), b.scene_lo, b.scene_hi)
-    brute, packets, _ = brute_and_packets(small_dragon)
+    brute, packets = ra.build(small_dragon, "none"), ra.build(small_dragon, "bvh-binned")
     assert_same_hits(brute.intersect(origins, directions), packets.intersect(origins, directions))
     np.testing.assert_array_equal(packets.occluded(origins, directions), brute.occluded(origins, directions))
 
