@@ -1,9 +1,10 @@
 """Box tests of a ray packet against a wide node, in vector instructions.
 
 Two tests, after Wald, Slusallek, Benthin & Wagner ("Interactive Rendering with
-Coherent Ray Tracing", Eurographics 2001) and Boulos, Wald, Shirley et al. ("Packet-based
-Whitted and Distribution Ray Tracing", Graphics Interface 2007, interval arithmetic
-over a packet's rays):
+Coherent Ray Tracing", Eurographics 2001: a packet's rays in vector lanes) and Wald,
+Boulos & Shirley ("Ray Tracing Deformable Scenes Using Dynamic Bounding Volume
+Hierarchies", ACM TOG 26(1), 2007: a box culled for a whole packet by interval
+arithmetic over its rays):
 
 * :func:`enter_children_interval`: the packet as a whole against the node's eight child
   boxes at once, as :func:`.wide_slab.enter_children` tests one ray: each slab distance
