@@ -345,3 +345,15 @@ def test_leaves_are_counted_among_the_nodes(small_dragon):
             np.testing.assert_array_equal(counters.leaves, counters.nodes)
         if method in ("kdtree", "octree", "bvh-binned"):
             assert (counters.nodes[tested] > counters.leaves[tested]).any(), method
+
+
+def test_octree_finds_a_triangle_far_from_the_origin_that_a_ray_starts_on():
+    """Found by the property test: a mesh moved 1e7 along x, cells a few hundredths wide, and a ray
+    starting on a triangle's vertex. The insertion pad must cover the rounding of cell centres
+    that far out, not only a fraction of the cell's size."""
+    vertices = np.array([[2, 0, 2], [0, 0, 0], [0, 1, 0], [0, 0, 2], [1, 0, 2]], float) + [1e7, 0.0, 0.0]
+    mesh = ra.TriangleMesh(vertices, np.array([[0, 3, 0], [1, 2, 4]]))
+    origin, direction = np.array([[1e7 + 1.0, 0.0, 2.0]]), np.array([[0.0, 0.0, -1.0]])
+    reference = ra.build(mesh, "none").intersect(origin, direction)
+    assert reference.prim[0] == 1
+    assert_same_hits(reference, ra.build(mesh, "octree", leaf_size=1).intersect(origin, direction))

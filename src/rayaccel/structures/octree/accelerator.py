@@ -22,6 +22,7 @@ __all__ = ["Octree"]
 
 _INSERT_MODES = ("bbox", "exact")
 _PAD = 1e-9  # octant boxes are grown by this fraction of their size when inserting
+_COORDINATE_PAD = 1e-11  # and by this fraction of the largest coordinate of the root cell
 
 
 class Octree(Accelerator):
@@ -60,7 +61,8 @@ class Octree(Accelerator):
         lo, hi = grid_box(bounds.scene_lo, bounds.scene_hi)
         center, link, leaf_prims, depth = build_octree(bounds.lo, bounds.hi, scene.kind, scene.geometry,
                                                        insert == "exact", lo, hi, options["leaf_size"],
-                                                       options["max_depth"], _PAD)
+                                                       options["max_depth"], _PAD,
+                                                       _COORDINATE_PAD * float(max(np.abs(lo).max(), np.abs(hi).max())))
         self.tree = OctreeArrays(lo, hi, center, link, leaf_prims)
         self.max_depth = int(depth)
         self.build_seconds = time.perf_counter() - start

@@ -17,8 +17,11 @@ node are allocated side by side. Only cells over the leaf size get octant
 counts, as the deep levels hold millions of cells that stay leaves.
 Primitives go into the octants their bounding box overlaps, or with ``exact``
 only those they really overlap (triangle-box SAT, sphere-box distance). Octant
-boxes are grown by ``pad`` so that a primitive touching a plane is found on
-both sides of it.
+boxes are grown by a pad so that a primitive touching a plane is found on
+both sides of it: a fraction of the cell's size, plus a fraction of the
+coordinates' magnitude, since a cell's centre far from the origin carries a
+rounding error of that size (a mesh moved 1e7 along x, cells 0.03 wide: the
+size term alone, 3e-11, lost a triangle whose vertex a ray started on).
 """
 
 from __future__ import annotations
@@ -67,7 +70,7 @@ def _octant_mask(prim, prim_lo, prim_hi, kind, geom, exact, cx, cy, cz, hx, hy, 
 
 @parallel_kernel
 def _count_octants(refs, ref_first, centers, halves, slot, prim_lo, prim_hi, kind, geom, exact, pad_fraction,
-                   counts, masks):
+                   coordinate_pad, counts, masks):
     """For every row with ``slot[row] >= 0``: each reference's octant mask into ``masks`` and the
     references per octant into ``counts[slot[row]]``."""
     for row in prange(slot.shape[0]):
@@ -76,7 +79,9 @@ def _count_octants(refs, ref_first, centers, halves, slot, prim_lo, prim_hi, kin
             continue
         cx, cy, cz = centers[row, 0], centers[row, 1], centers[row, 2]
         hx, hy, hz = halves[row, 0], halves[row, 1], halves[row, 2]
-        px, py, pz = hx * pad_fraction, hy * pad_fraction, hz * pad_fraction
+        px = hx * pad_fraction + coordinate_pad
+        py = hy * pad_fraction + coordinate_pad
+        pz = hz * pad_fraction + coordinate_pad
         for k in range(ref_first[row], ref_first[row + 1]):
             mask = _octant_mask(refs[k], prim_lo, prim_hi, kind, geom, exact, cx, cy, cz, hx, hy, hz, px, py, pz)
             masks[k] = mask
@@ -100,8 +105,9 @@ def _write_octants(refs, ref_first, slot, masks, cursor, out):
 
 
 @kernel
-def build_octree(prim_lo, prim_hi, kind, geom, exact, lo, hi, leaf_size, max_depth, pad_fraction):
-    """Build over all primitives in the root cell ``lo``..``hi``. Returns
+def build_octree(prim_lo, prim_hi, kind, geom, exact, lo, hi, leaf_size, max_depth, pad_fraction, coordinate_pad):
+    """Build over all primitives in the root cell ``lo``..``hi``, octant boxes grown by
+    ``pad_fraction`` of their half size plus ``coordinate_pad``. Returns
     ``(node_center, node_link, leaf_prims, depth)``; see :mod:`.layout`."""
     n = prim_lo.shape[0]
     node_center = np.empty((64, 3))
@@ -129,7 +135,7 @@ def build_octree(prim_lo, prim_hi, kind, geom, exact, lo, hi, leaf_size, max_dep
         counts = np.zeros((n_candidates, 8), dtype=np.int64)
         masks = np.empty(refs.shape[0], dtype=np.uint8)
         _count_octants(refs, ref_first, centers, halves, slot, prim_lo, prim_hi, kind, geom, exact, pad_fraction,
-                       counts, masks)
+                       coordinate_pad, counts, masks)
         n_split = 0
         leaf_refs = 0
         for r in range(m):
