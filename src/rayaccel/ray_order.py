@@ -117,13 +117,14 @@ def _sort_rays(origins, directions, t_min, t_max, hit_slot, lo, scale, bits_per_
             out_hit_slot[place] = result_row(hit_slot, i)
 
 
-def _starts_close(batch: RayBatch, scene_lo, scene_hi) -> bool:
-    """Whether consecutive rays of an evenly spaced sample start within ``1/64`` of the scene's
-    size of each other, half of them or more."""
-    n = len(batch.origins)
-    sample = np.arange(0, n - 1, max(1, n // _SAMPLE))
-    steps = np.abs(batch.origins[sample + 1] - batch.origins[sample]).max(axis=1)
-    return bool(np.median(steps) <= _NEARBY * float(np.max(scene_hi - scene_lo)))
+def _neighbour_sample(n: int) -> np.ndarray:
+    """Evenly spaced indices ``i`` of a batch of ``n`` rays whose ray ``i + 1`` is compared with ray ``i``."""
+    return np.arange(0, n - 1, max(1, n // _SAMPLE))
+
+
+def _median_origin_step(batch: RayBatch, sample: np.ndarray) -> float:
+    """The median, over the sampled neighbours, of the largest coordinate difference of their origins."""
+    return float(np.median(np.abs(batch.origins[sample + 1] - batch.origins[sample]).max(axis=1)))
 
 
 def packets_pay(batch: RayBatch, scene_lo, scene_hi) -> bool:
@@ -137,9 +138,8 @@ def packets_pay(batch: RayBatch, scene_lo, scene_hi) -> bool:
     n = len(batch.origins)
     if n < MIN_PACKET_RAYS:
         return False
-    sample = np.arange(0, n - 1, max(1, n // _SAMPLE))
-    steps = np.abs(batch.origins[sample + 1] - batch.origins[sample]).max(axis=1)
-    if np.median(steps) > 1e-9 * float(np.max(scene_hi - scene_lo)):
+    sample = _neighbour_sample(n)
+    if _median_origin_step(batch, sample) > 1e-9 * float(np.max(scene_hi - scene_lo)):
         return False
     d0, d1 = batch.directions[sample], batch.directions[sample + 1]
     cosine = (d0 * d1).sum(axis=1) / (np.linalg.norm(d0, axis=1) * np.linalg.norm(d1, axis=1))
@@ -153,9 +153,9 @@ def coherent_batch(batch: RayBatch, scene_lo: np.ndarray, scene_hi: np.ndarray) 
     of each other (half of them or more), as camera rays and the shadow rays from
     their hits do."""
     n = len(batch.origins)
-    if _starts_close(batch, scene_lo, scene_hi):
+    sample = _neighbour_sample(n)
+    if _median_origin_step(batch, sample) <= _NEARBY * float(np.max(scene_hi - scene_lo)):
         return batch
-    sample = np.arange(0, n - 1, max(1, n // _SAMPLE))
     origins = batch.origins[sample]
     lo, extent = origins.min(axis=0), np.ptp(origins, axis=0)
     scale = (1 << _BITS_PER_AXIS) / np.where(extent > 0.0, extent, 1.0)

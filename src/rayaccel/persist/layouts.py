@@ -229,8 +229,7 @@ def _load_bvh(accel, meta, arrays):
         accel.sah_cost_at_build = meta["sah_cost_at_build"]
     accel.bounds_kind = _BOUNDS[options["bounds"]]
     accel.geometry = accel.scene.gather(order)
-    accel.max_depth = int(depth.max())
-    wide_tree = _wide_tree(arrays, count, accel.max_depth)
+    wide_tree = _wide_tree(arrays, count, int(depth.max()))
     if wide_tree is not None:
         c.require(options["bounds"] == "aabb" and options["width"] == WIDTH, "a wide tree saved with a binary BVH")
         accel._wide_tree = wide_tree

@@ -121,18 +121,19 @@ class BoundingVolumeHierarchy(Accelerator):
         self.geometry = scene.gather(order)
         self.bounds_kind = _BOUNDS[bounds]
         self._pack_for_traversal(box, first, count, order, pad)
-        self.max_depth = int(node_depths(first, count).max())
         self.build_seconds = time.perf_counter() - start
 
     def _pack_for_traversal(self, box, first, count, order, pad, same_tree=False, keep_binary=False):
         """Derive from the binary tree (boxes already grown by ``pad``) and :attr:`geometry`
-        every array the traversal reads. The build, :meth:`refit` and
+        every array the traversal reads, and the tree's depth. The build, :meth:`refit` and
         :func:`rayaccel.load_accelerator` all go through here; ``same_tree`` (a refit, or a load
         that read the collapse from the file) keeps the wide collapse in ``_wide_tree`` and
         packs only its boxes. A BVH walked eight-wide then keeps no binary tree unless
         ``keep_binary`` (a refit, whose tree the next refit reuses): :attr:`bvh` recovers it
         when asked (:mod:`.binary_from_wide`)."""
         self.pad = pad
+        depths = node_depths(first, count)
+        self.max_depth = int(depths.max())
         self._winding_cache = None
         self._caps_cache = None
         bounds = self.options["bounds"]
@@ -155,7 +156,7 @@ class BoundingVolumeHierarchy(Accelerator):
             self._wide_tree = wide_tree(box, first, count)
         self.wide = wide_records(box, first, count, self._wide_tree) if wide else None
         if wide:
-            self._slot_depths = slot_depths(*self._wide_tree, node_depths(first, count))
+            self._slot_depths = slot_depths(*self._wide_tree, depths)
             if not keep_binary:
                 self._binary = self._wide_tree = None
 

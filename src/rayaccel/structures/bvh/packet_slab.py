@@ -31,18 +31,21 @@ from numba.extending import intrinsic
 from .wide import WIDTH
 from .wide_slab import entered_children, tighten_lanes
 
-__all__ = ["PACKET", "PACKET_ROWS", "BOUND_VALUES", "enter_children_interval", "enter_child_lanes"]
+__all__ = ["PACKET", "PACKET_ROWS", "BOUND_T_MIN", "BOUND_BEST", "BOUND_VALUES", "enter_children_interval",
+           "enter_child_lanes"]
 
 PACKET = 8
 """Rays per packet, one per vector lane."""
 PACKET_ROWS = 8
 """Rows of :data:`PACKET` float64 in a packet's ray state: origin x, y, z, inverse
 direction x, y, z, ``t_min``, best distance so far."""
+BOUND_T_MIN = 15
+BOUND_BEST = 16
 BOUND_VALUES = 17
 """Float64 values of a packet's bounds: for each axis five, its near block (0-2 for the
 box's ``lo``, 3-5 for ``hi``, as a float), the extreme origins that bound its rays' near and
-far distances, and the two ends of its rays' inverse directions; then the smallest
-``t_min`` and the farthest best distance of its rays."""
+far distances, and the two ends of its rays' inverse directions; then, at :data:`BOUND_T_MIN`
+and :data:`BOUND_BEST`, the smallest ``t_min`` and the farthest best distance of its rays."""
 
 
 def _splat(builder, value, vector_type):
@@ -82,8 +85,8 @@ def enter_children_interval(typingctx, records, node, bounds, entry):
             pointer = builder.gep(row, [builder.mul(block, ir.Constant(intp, WIDTH))])
             return builder.fpext(builder.load(builder.bitcast(pointer, floats.as_pointer()), align=32), doubles)
 
-        enter = _splat(builder, value(15), doubles)
-        exit_ = _splat(builder, value(16), doubles)
+        enter = _splat(builder, value(BOUND_T_MIN), doubles)
+        exit_ = _splat(builder, value(BOUND_BEST), doubles)
         for axis in range(3):
             near_block = builder.fptosi(value(5 * axis), intp)
             far_block = builder.sub(ir.Constant(intp, 2 * axis + 3), near_block)

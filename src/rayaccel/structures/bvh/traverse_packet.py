@@ -29,7 +29,7 @@ from ..._jit import chunk_kernel, inline_kernel
 from ...geometry.primitive import ray_setup
 from ...rays import ray_limit, result_row
 from ..actions import NEAREST, finish_ray_in_mode, visit_prim_in_mode
-from .packet_slab import PACKET, enter_child_lanes, enter_children_interval
+from .packet_slab import BOUND_BEST, BOUND_T_MIN, PACKET, enter_child_lanes, enter_children_interval
 from .traverse_wide import push_child
 from .wide import COUNT, LINK
 from .wide_slab import highest_bit
@@ -98,8 +98,8 @@ def _packet_walk(ray_first, ray_end, tid, records, links, prim_order, kind, geom
             for r in range(group_first, group_first + group):
                 packet_t_min = min(packet_t_min, state[_T_MIN + r])
                 farthest_best = max(farthest_best, state[_BEST + r])
-            bounds[15] = packet_t_min
-            bounds[16] = farthest_best
+            bounds[BOUND_T_MIN] = packet_t_min
+            bounds[BOUND_BEST] = farthest_best
             done = 0
             node = 0
             lanes = active
@@ -134,7 +134,7 @@ def _packet_walk(ray_first, ray_end, tid, records, links, prim_order, kind, geom
                     sp -= 1
                     word = stack_count[tid, sp]
                     lanes = (word >> _LANES_SHIFT) & ~done
-                    if lanes == 0 or stack_t[tid, sp] > bounds[16]:
+                    if lanes == 0 or stack_t[tid, sp] > bounds[BOUND_BEST]:
                         continue
                     count = word & _COUNT_MASK
                     if count == 0:
@@ -174,7 +174,7 @@ def _packet_walk(ray_first, ray_end, tid, records, links, prim_order, kind, geom
                         farthest_best = -np.inf
                         for r in range(group_first, group_first + group):
                             farthest_best = max(farthest_best, state[_BEST + r])
-                        bounds[16] = farthest_best
+                        bounds[BOUND_BEST] = farthest_best
                 if node < 0:
                     break
         for r in range(n_lanes):
