@@ -50,7 +50,8 @@ from ._jit import kernel, parallel_kernel, thread_count
 from .counting_sort import chunk_range, counts_to_starts
 from .rays import RayBatch, result_row
 
-__all__ = ["MIN_RAYS", "MIN_PACKET_RAYS", "coherent_batch", "last_level_cache_bytes", "sorting_pays", "packets_pay"]
+__all__ = ["MIN_RAYS", "MIN_PACKET_RAYS", "coherent_batch", "last_level_cache_bytes", "second_level_cache_bytes",
+           "sorting_pays", "packets_pay", "interleaving_pays"]
 
 MIN_RAYS = 1 << 15
 """Batches smaller than this are traced as given: the sort would cost more than it saves."""
@@ -60,6 +61,9 @@ MIN_PACKET_RAYS = 1024
 _PACKET_ANGLE = 0.02
 
 _DEFAULT_CACHE_BYTES = 32 << 20
+_DEFAULT_L2_BYTES = 1 << 20
+_INTERLEAVE_CACHES = 4
+_SPREAD_ANGLE = 0.1
 _BITS_PER_AXIS = 2
 _NEARBY = 1.0 / 64.0
 _SAMPLE = 4096
@@ -127,6 +131,12 @@ def _median_origin_step(batch: RayBatch, sample: np.ndarray) -> float:
     return float(np.median(np.abs(batch.origins[sample + 1] - batch.origins[sample]).max(axis=1)))
 
 
+def _median_neighbour_cosine(batch: RayBatch, sample: np.ndarray) -> float:
+    """The median, over the sampled neighbours, of the cosine of the angle between their directions."""
+    d0, d1 = batch.directions[sample], batch.directions[sample + 1]
+    return float(np.median((d0 * d1).sum(axis=1) / (np.linalg.norm(d0, axis=1) * np.linalg.norm(d1, axis=1))))
+
+
 def packets_pay(batch: RayBatch, scene_lo, scene_hi) -> bool:
     """Whether a batch is coherent enough to trace in packets of consecutive rays: at least
     :data:`MIN_PACKET_RAYS` rays, half of the sampled neighbours or more starting at the same
@@ -141,9 +151,22 @@ def packets_pay(batch: RayBatch, scene_lo, scene_hi) -> bool:
     sample = _neighbour_sample(n)
     if _median_origin_step(batch, sample) > 1e-9 * float(np.max(scene_hi - scene_lo)):
         return False
-    d0, d1 = batch.directions[sample], batch.directions[sample + 1]
-    cosine = (d0 * d1).sum(axis=1) / (np.linalg.norm(d0, axis=1) * np.linalg.norm(d1, axis=1))
-    return bool(np.median(cosine) >= np.cos(_PACKET_ANGLE))
+    return _median_neighbour_cosine(batch, sample) >= np.cos(_PACKET_ANGLE)
+
+
+def interleaving_pays(batch: RayBatch, scene_lo, scene_hi, structure_bytes: int) -> bool:
+    """Whether the eight-wide BVH walk should keep several rays in flight per thread
+    (:mod:`.structures.bvh.traverse_interleaved`): a structure of more than four times a
+    core's second-level cache, and a batch whose neighbouring rays start apart (more than
+    ``1/64`` of the scene's size, for half of them or more) or head apart (by more than
+    0.1 radian), so that they do not share the nodes they wait for. Camera rays and shadow
+    rays from their hits to one light keep the walk of one ray at a time."""
+    if structure_bytes <= _INTERLEAVE_CACHES * second_level_cache_bytes() or len(batch.origins) < 2:
+        return False
+    sample = _neighbour_sample(len(batch.origins))
+    if _median_origin_step(batch, sample) > _NEARBY * float(np.max(scene_hi - scene_lo)):
+        return True
+    return _median_neighbour_cosine(batch, sample) < np.cos(_SPREAD_ANGLE)
 
 
 def coherent_batch(batch: RayBatch, scene_lo: np.ndarray, scene_hi: np.ndarray) -> RayBatch:
@@ -168,16 +191,32 @@ def coherent_batch(batch: RayBatch, scene_lo: np.ndarray, scene_hi: np.ndarray) 
 
 
 @functools.cache
-def last_level_cache_bytes() -> int:
-    """Size of the largest CPU cache, read from Linux's ``/sys``; 32 MiB where it cannot be read."""
-    sizes = []
-    for entry in Path("/sys/devices/system/cpu/cpu0/cache").glob("index*/size"):
-        text = entry.read_text().strip().upper()
+def _cache_sizes() -> dict[int, int]:
+    """The size in bytes of each level of CPU cache that holds data, read from Linux's ``/sys``
+    (empty where it cannot be read)."""
+    sizes = {}
+    for index in Path("/sys/devices/system/cpu/cpu0/cache").glob("index*"):
+        try:
+            level = int((index / "level").read_text())
+            kind = (index / "type").read_text().strip()
+            text = (index / "size").read_text().strip().upper()
+        except (OSError, ValueError):
+            continue
         unit = {"K": 1 << 10, "M": 1 << 20, "G": 1 << 30}.get(text[-1:], 1)
         digits = text.rstrip("KMG")
-        if digits.isdigit():
-            sizes.append(int(digits) * unit)
-    return max(sizes, default=_DEFAULT_CACHE_BYTES)
+        if kind != "Instruction" and digits.isdigit():
+            sizes[level] = max(sizes.get(level, 0), int(digits) * unit)
+    return sizes
+
+
+def last_level_cache_bytes() -> int:
+    """Size of the largest CPU cache; 32 MiB where it cannot be read."""
+    return max(_cache_sizes().values(), default=_DEFAULT_CACHE_BYTES)
+
+
+def second_level_cache_bytes() -> int:
+    """Size of one core's second-level cache; 1 MiB where it cannot be read."""
+    return _cache_sizes().get(2, _DEFAULT_L2_BYTES)
 
 
 def sorting_pays(n_rays: int, structure_bytes: int) -> bool:

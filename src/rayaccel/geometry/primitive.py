@@ -10,7 +10,12 @@ from .kinds import TRIANGLE
 from .sphere import cross_sphere, intersect_sphere
 from .triangle import cross_triangle, intersect_triangle, shear_setup
 
-__all__ = ["ray_setup", "intersect_prim", "cross_prim"]
+__all__ = ["ray_setup", "RAY_FLOATS", "RAY_INTS", "store_ray", "load_ray", "intersect_prim", "cross_prim"]
+
+RAY_FLOATS = 12
+"""Floats of :func:`ray_setup`'s constants, as :func:`store_ray` keeps them."""
+RAY_INTS = 3
+"""Integers of :func:`ray_setup`'s constants (the shear's axes)."""
 
 
 @inline_kernel
@@ -20,6 +25,27 @@ def ray_setup(ox, oy, oz, dx, dy, dz):
     kx, ky, kz, sx, sy, sz = shear_setup(dx, dy, dz)
     origin = (ox, oy, oz)
     return (ox, oy, oz, dx, dy, dz, kx, ky, kz, sx, sy, sz, origin[kx], origin[ky], origin[kz])
+
+
+@inline_kernel
+def store_ray(ray, floats, ints, slot):
+    """Keep :func:`ray_setup`'s constants in row ``slot`` of ``floats`` (its first
+    :data:`RAY_FLOATS` columns) and of ``ints`` (its first :data:`RAY_INTS`), for a walk that
+    puts a ray aside and takes it up again (:func:`load_ray`)."""
+    ox, oy, oz, dx, dy, dz, kx, ky, kz, sx, sy, sz, okx, oky, okz = ray
+    floats[slot, 0], floats[slot, 1], floats[slot, 2] = ox, oy, oz
+    floats[slot, 3], floats[slot, 4], floats[slot, 5] = dx, dy, dz
+    floats[slot, 6], floats[slot, 7], floats[slot, 8] = sx, sy, sz
+    floats[slot, 9], floats[slot, 10], floats[slot, 11] = okx, oky, okz
+    ints[slot, 0], ints[slot, 1], ints[slot, 2] = kx, ky, kz
+
+
+@inline_kernel
+def load_ray(floats, ints, slot):
+    """The constants :func:`store_ray` kept in row ``slot``."""
+    return (floats[slot, 0], floats[slot, 1], floats[slot, 2], floats[slot, 3], floats[slot, 4], floats[slot, 5],
+            ints[slot, 0], ints[slot, 1], ints[slot, 2], floats[slot, 6], floats[slot, 7], floats[slot, 8],
+            floats[slot, 9], floats[slot, 10], floats[slot, 11])
 
 
 @inline_kernel

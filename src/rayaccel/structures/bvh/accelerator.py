@@ -11,7 +11,7 @@ from ..._jit import thread_count, thread_rows
 from ..._validate import check_number
 from ...geometry.gather import layout_nbytes, layout_rows
 from ...geometry.kdop import KDOP_NORMALS, kdop_surface_areas
-from ...ray_order import packets_pay
+from ...ray_order import interleaving_pays, packets_pay
 from ...stats import surface_area_stats
 from ..actions import NEAREST
 from ..base import Accelerator, walk_rays
@@ -26,6 +26,13 @@ from .packet_slab import BOUND_VALUES, PACKET
 from .refit import refit_bvh, refit_geometry_boxes
 from .split_morton import morton_codes
 from .traverse import BOX, KDOP, SPHERE_VOLUME, bvh_trace_kernel
+from .traverse_interleaved import (
+    SLOT_FLOATS,
+    SLOT_INTS,
+    SLOTS,
+    interleaved_crossings_kernel,
+    interleaved_nearest_kernel,
+)
 from .traverse_packet import LANE_ROWS, wide_packet_crossings_kernel, wide_packet_kernel
 from .traverse_wide import wide_crossings_kernel, wide_nearest_kernel
 from .volumes import fit_kdops, fit_spheres
@@ -81,12 +88,18 @@ class BoundingVolumeHierarchy(Accelerator):
         alike, as a pinhole camera's do (:func:`rayaccel.ray_order.packets_pay`), in
         packets of eight consecutive rays (:mod:`rayaccel.structures.bvh.traverse_packet`);
         ``False`` walks every ray on its own. The answers are the same either way.
+    interleave : bool, default True
+        With the eight-wide walk, trace a batch of incoherent rays through a tree larger
+        than the caches (:func:`rayaccel.ray_order.interleaving_pays`) with several rays
+        in flight per thread, taking steps in turn, so that one ray's wait for memory
+        overlaps the others' work (:mod:`rayaccel.structures.bvh.traverse_interleaved`);
+        ``False`` walks the rays one after the other. The answers are the same either way.
     """
 
     default_leaf_size = 4
 
     def __init__(self, scene, *, max_leaf_size=None, traversal_cost=None, intersection_cost=1.0, bounds="aabb",
-                 sphere_fit="primitives", width=WIDTH, packets=True, **builder_options):
+                 sphere_fit="primitives", width=WIDTH, packets=True, interleave=True, **builder_options):
         max_leaf_size = self.default_leaf_size if max_leaf_size is None else max_leaf_size
         wide = bounds == "aabb" and width == WIDTH
         if traversal_cost is None:
@@ -107,9 +120,10 @@ class BoundingVolumeHierarchy(Accelerator):
         if bounds == "aabb":
             options["width"] = width
         if wide:
-            if not isinstance(packets, bool):
-                raise TypeError(f"packets must be True or False, got {packets!r}")
-            options["packets"] = packets
+            for name, value in (("packets", packets), ("interleave", interleave)):
+                if not isinstance(value, bool):
+                    raise TypeError(f"{name} must be True or False, got {value!r}")
+                options[name] = value
         super().__init__(scene, options)
         start = time.perf_counter()
         prim_bounds = self._primitive_bounds()
@@ -194,30 +208,37 @@ class BoundingVolumeHierarchy(Accelerator):
 
     def _trace(self, batch, any_hit, action, work):
         rows = numba.config.NUMBA_NUM_THREADS
-        if self.wide is not None:
-            depth = (WIDTH - 1) * self.max_depth + 2
-            links = self.wide.view(np.int32)
-            stack_link, stack_count = thread_rows((rows, depth), np.int32), thread_rows((rows, depth), np.int32)
-            stack_t = thread_rows((rows, depth))
-            if work.shape[0] == 0 and self.options.get("packets", True) and packets_pay(batch, *self.scene_box):
-                packet_walk = wide_packet_kernel if action.mode == NEAREST else wide_packet_crossings_kernel
-                walk_rays(packet_walk, len(batch.origins), self.wide, links, self.prim_order,
-                          self.scene.kind, self.geometry, *batch, any_hit, stack_link, stack_count, stack_t,
-                          thread_rows((rows, WIDTH)),
-                          thread_rows((rows, LANE_ROWS * PACKET)), thread_rows((rows, BOUND_VALUES)),
-                          thread_rows((rows, PACKET), np.int64), action)
-                return
-            walk = wide_nearest_kernel if action.mode == NEAREST else wide_crossings_kernel
-            walk_rays(walk, len(batch.origins), self.root_record, self.wide, links, self.prim_order,
-                      self.scene.kind, self.geometry, *batch, any_hit, stack_link, stack_count, stack_t,
-                      thread_rows((rows, WIDTH)), action, work)
+        if self.wide is None:
+            b = self.bvh
+            stack_node = thread_rows((rows, self.max_depth + 2), np.int32)
+            stack_t = thread_rows((rows, self.max_depth + 2))
+            walk_rays(bvh_trace_kernel, len(batch.origins), self.bounds_kind, b.node_records, self._volume_rows,
+                      b.node_records.view(np.int32), b.prim_order, self.scene.kind, self.geometry, KDOP_NORMALS,
+                      *batch, any_hit, stack_node, stack_t, action, work)
             return
-        b = self.bvh
-        stack_node = thread_rows((rows, self.max_depth + 2), np.int32)
-        stack_t = thread_rows((rows, self.max_depth + 2))
-        walk_rays(bvh_trace_kernel, len(batch.origins), self.bounds_kind, b.node_records, self._volume_rows,
-                  b.node_records.view(np.int32), b.prim_order, self.scene.kind, self.geometry, KDOP_NORMALS, *batch,
-                  any_hit, stack_node, stack_t, action, work)
+        nearest = action.mode == NEAREST
+        tree = (self.wide, self.wide.view(np.int32), self.prim_order, self.scene.kind, self.geometry)
+        if work.shape[0] == 0 and self.options.get("packets", True) and packets_pay(batch, *self.scene_box):
+            walk_rays(wide_packet_kernel if nearest else wide_packet_crossings_kernel, len(batch.origins), *tree,
+                      *batch, any_hit, *self._wide_stacks(rows), thread_rows((rows, WIDTH)),
+                      thread_rows((rows, LANE_ROWS * PACKET)), thread_rows((rows, BOUND_VALUES)),
+                      thread_rows((rows, PACKET), np.int64), action)
+        elif self.options.get("interleave", True) and interleaving_pays(batch, *self.scene_box, self.nbytes):
+            walk_rays(interleaved_nearest_kernel if nearest else interleaved_crossings_kernel, len(batch.origins),
+                      self.root_record, *tree, *batch, any_hit, *self._wide_stacks(rows * SLOTS),
+                      thread_rows((rows, WIDTH)), SLOTS, thread_rows((rows, SLOTS, SLOT_INTS), np.int64),
+                      thread_rows((rows, SLOTS, SLOT_FLOATS)), action, work)
+        else:
+            walk_rays(wide_nearest_kernel if nearest else wide_crossings_kernel, len(batch.origins),
+                      self.root_record, *tree, *batch, any_hit, *self._wide_stacks(rows), thread_rows((rows, WIDTH)),
+                      action, work)
+
+    def _wide_stacks(self, rows: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``rows`` stacks deep enough for the eight-wide walks: the entries' links, primitive
+        counts and entry distances."""
+        depth = (WIDTH - 1) * self.max_depth + 2
+        return (thread_rows((rows, depth), np.int32), thread_rows((rows, depth), np.int32),
+                thread_rows((rows, depth)))
 
     def _nearest(self, points, limit_d2, out_d2, out_prim):
         """The walk by distance of :mod:`.nearest` over the binary tree."""

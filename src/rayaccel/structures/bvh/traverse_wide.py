@@ -38,7 +38,7 @@ from .traverse import enter_box
 from .wide import COUNT, LINK
 from .wide_slab import enter_children, highest_bit
 
-__all__ = ["wide_nearest_kernel", "wide_crossings_kernel", "push_child"]
+__all__ = ["wide_nearest_kernel", "wide_crossings_kernel", "push_child", "visit_leaf"]
 
 
 @inline_kernel
@@ -63,6 +63,23 @@ def push_child(records, geom, stack_link, stack_count, stack_t, tid, base, sp, t
     stack_count[tid, slot] = word
     stack_t[tid, slot] = t
     return sp + 1
+
+
+@inline_kernel
+def visit_leaf(mode, action, row, kind, geom, prim_order, first, count, ray, t_min, best_t, best_prim, best_u, best_v,
+               any_hit):
+    """Visit the ``count`` primitives of a leaf from row ``first`` of ``geom`` on with the action
+    (:func:`..actions.visit_prim_in_mode`), stopping at the first hit of an any-hit walk:
+    ``(best_t, best_prim, best_u, best_v, tests)``, the walk's best hit and the primitives tested."""
+    tests = 0
+    for k in range(first, first + count):
+        tests += 1
+        best_t, best_prim, best_u, best_v, stop = visit_prim_in_mode(mode, action, row, kind, geom, k, prim_order[k],
+                                                                     ray, t_min, best_t, best_prim, best_u, best_v,
+                                                                     any_hit)
+        if stop:
+            break
+    return best_t, best_prim, best_u, best_v, tests
 
 
 @inline_kernel
@@ -141,15 +158,10 @@ def _walk(ray_first, ray_end, tid, root_box, records, links, prim_order, kind, g
                     break
                 n_nodes += 1
                 n_leaves += 1
-                first = stack_link[tid, sp]
-                for k in range(first, first + count):
-                    n_tests += 1
-                    best_t, best_prim, best_u, best_v, stop = visit_prim_in_mode(mode, action, row, kind,
-                                                                                 geom, k, prim_order[k], ray,
-                                                                                 ray_t_min, best_t, best_prim,
-                                                                                 best_u, best_v, any_hit)
-                    if stop:
-                        break
+                best_t, best_prim, best_u, best_v, tests = visit_leaf(mode, action, row, kind, geom, prim_order,
+                                                                      stack_link[tid, sp], count, ray, ray_t_min,
+                                                                      best_t, best_prim, best_u, best_v, any_hit)
+                n_tests += tests
                 if any_hit and best_prim >= 0:
                     sp = 0
         finish_ray_in_mode(mode, action, row, best_t, best_prim, best_u, best_v)
