@@ -17,16 +17,25 @@ waits in a row of per-thread scratch between its steps, its stack in a stack
 row of its own. The node test, the order of the pushes and the leaf visits
 are those of :mod:`.traverse_wide`, so every ray gets the same answer.
 
-Measured against :mod:`.traverse_wide` on one core (CPU time, medians of seven
-interleaved rounds, 2**20 incoherent rays, ``bvh-binned``), closest / any hit:
-full dragon (61 MB of records and triangles) 1.48 / 1.67 with eight slots
-(1.36 / 1.52 with four, 1.25 / 1.29 with two); dragon-203k (15 MB) 1.13 / 1.20;
-armadillo (5 MB) 0.98 / 1.04; forest-small-chair (4 MB) 0.87 / 0.85, where the
-tree stays in the 2 MiB second-level cache and its last level: there the
-saved and restored state and the rays taking turns only cost. Shadow rays from
-a camera's hits, whose neighbours start close together and share their nodes:
-1.03-1.05 on the full dragon, 0.94-0.95 on dragon-203k. Hence
-:func:`rayaccel.ray_order.interleaving_pays`.
+Measured against :mod:`.traverse_wide` (``interleave=False``), medians of seven
+interleaved rounds, 2**20 incoherent rays, ``bvh-binned``, same answers; closest
+hit / any hit / ``count``, one core (CPU time) and two (wall time):
+
+* full dragon (61 MB of records and triangles): 1.34 / 1.39 / 1.57 and 1.35 /
+  1.40 / 1.42;
+* dragon-203k (15 MB): 1.08 / 1.19 / 1.20 and 1.05 / 1.19 / 1.19;
+* armadillo (5 MB), one core: 0.96 / 1.02; forest-small-chair (3 MB): 0.84 /
+  0.82. These trees stay in the 2 MiB second-level caches and the last level,
+  where saving and restoring each ray's state and the rays' taking turns only
+  cost; shadow rays through them ran at 0.78-0.83.
+
+Twelve slots: on two cores, closest hit on the full dragon took 200, 200,
+225, 194 and 210 ms with 4, 6, 8, 12 and 16 slots (8 was the slowest in
+each of three queries and two runs); one core gained little beyond six.
+Shadow rays from a camera's hits, whose neighbours start close together and
+share their nodes, are not interleaved: on the full dragon they ran at
+1.03-1.05 of the single walk with eight slots, on dragon-203k at 0.94-0.95.
+Hence :func:`rayaccel.ray_order.interleaving_pays`.
 """
 
 from __future__ import annotations
@@ -44,7 +53,7 @@ from .wide_slab import enter_children, highest_bit
 
 __all__ = ["SLOTS", "SLOT_INTS", "SLOT_FLOATS", "interleaved_nearest_kernel", "interleaved_crossings_kernel"]
 
-SLOTS = 8
+SLOTS = 12
 """Rays in flight per thread."""
 
 _RAY, _LINK, _COUNT, _SP, _PRIM, _NEAR_X, _NEAR_Y, _NEAR_Z, _NODES, _TESTS, _LEAVES = range(RAY_INTS, RAY_INTS + 11)
