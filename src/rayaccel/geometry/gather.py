@@ -122,8 +122,9 @@ def corner(geom, prim, j, axis):
 @overload(corner)
 def _corner(geom, prim, j, axis):
     if isinstance(geom, types.Array):
-        return lambda geom, prim, j, axis: np.float64(geom[prim, 3 * j + axis])
-    return lambda geom, prim, j, axis: np.float64(geom[1][unsigned(geom[0][prim, j]), axis])
+        return lambda geom, prim, j, axis: np.float64(geom[unsigned(prim), unsigned(3 * j + axis)])
+    return lambda geom, prim, j, axis: np.float64(geom[1][unsigned(geom[0][unsigned(prim), unsigned(j)]),
+                                                                 unsigned(axis)])
 
 
 def prefetch_prim(geom, prim):

@@ -42,13 +42,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..._jit import chunk_kernel, inline_kernel
+from ..._jit import chunk_kernel, inline_kernel, unsigned
 from ...geometry.primitive import RAY_FLOATS, RAY_INTS, load_ray, ray_setup, store_ray
 from ...rays import ray_limit, result_row
 from ..actions import NEAREST, finish_ray_in_mode
 from .traverse import enter_box
 from .traverse_wide import push_child, visit_leaf
-from .wide import COUNT, LINK
+from .wide import child_count, child_link
 from .wide_slab import enter_children, highest_bit
 
 __all__ = ["SLOTS", "SLOT_INTS", "SLOT_FLOATS", "interleaved_nearest_kernel", "interleaved_crossings_kernel"]
@@ -143,7 +143,7 @@ def _walk(ray_first, ray_end, tid, root_box, records, links, prim_order, kind, g
             i = ints[slot, _RAY]
             if i < 0:
                 continue
-            stack = tid * slots + slot
+            stack = unsigned(tid * slots + slot)
             sp = ints[slot, _SP]
             link = ints[slot, _LINK]
             count = ints[slot, _COUNT]
@@ -160,9 +160,9 @@ def _walk(ray_first, ray_end, tid, root_box, records, links, prim_order, kind, g
                 while entered != 0:
                     c = highest_bit(entered)
                     entered ^= 1 << c
-                    child_count = links[link, COUNT + c]
-                    sp = push_child(records, geom, stack_link, stack_count, stack_t, stack, base, sp, child_entry[c],
-                                    links[link, LINK + c], child_count, child_count, nearest_first)
+                    prims = child_count(links, link, c)
+                    sp = push_child(records, geom, stack_link, stack_count, stack_t, stack, base, sp,
+                                    child_entry[unsigned(c)], child_link(links, link, c), prims, prims, nearest_first)
             else:
                 ints[slot, _LEAVES] += 1
                 best_t, best_prim, best_u, best_v, tests = visit_leaf(mode, action, result_row(hit_slot, i), kind,
@@ -179,9 +179,10 @@ def _walk(ray_first, ray_end, tid, root_box, records, links, prim_order, kind, g
             count = -1
             while sp > 0:
                 sp -= 1
-                if stack_t[stack, sp] <= best_t:
-                    link = stack_link[stack, sp]
-                    count = stack_count[stack, sp]
+                top = unsigned(sp)
+                if stack_t[stack, top] <= best_t:
+                    link = stack_link[stack, top]
+                    count = stack_count[stack, top]
                     break
             if count >= 0:
                 ints[slot, _SP] = sp

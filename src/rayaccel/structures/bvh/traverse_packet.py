@@ -31,7 +31,7 @@ from ...rays import ray_limit, result_row
 from ..actions import NEAREST, finish_ray_in_mode, visit_prim_in_mode
 from .packet_slab import BOUND_BEST, BOUND_T_MIN, PACKET, enter_child_lanes, enter_children_interval
 from .traverse_wide import push_child
-from .wide import COUNT, LINK
+from .wide import child_count, child_link
 from .wide_slab import highest_bit
 
 __all__ = ["LANE_ROWS", "wide_packet_kernel", "wide_packet_crossings_kernel"]
@@ -112,8 +112,8 @@ def _packet_walk(ray_first, ray_end, tid, records, links, prim_order, kind, geom
                     while children != 0:
                         c = highest_bit(children)
                         children ^= 1 << c
-                        link = links[node, LINK + c]
-                        count = links[node, COUNT + c]
+                        link = child_link(links, node, c)
+                        count = child_count(links, node, c)
                         child_lanes = lanes
                         if count == 0:
                             if children == 0 and sp == base:

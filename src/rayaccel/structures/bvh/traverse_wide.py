@@ -29,13 +29,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..._jit import chunk_kernel, inline_kernel, prefetch
+from ..._jit import chunk_kernel, inline_kernel, prefetch, unsigned
 from ...geometry.gather import prefetch_prim
 from ...geometry.primitive import ray_setup
 from ...rays import ray_limit, result_row
 from ..actions import NEAREST, finish_ray_in_mode, visit_prim_in_mode
 from .traverse import enter_box
-from .wide import COUNT, LINK
+from .wide import child_count, child_link
 from .wide_slab import enter_children, highest_bit
 
 __all__ = ["wide_nearest_kernel", "wide_crossings_kernel", "push_child", "visit_leaf"]
@@ -52,16 +52,18 @@ def push_child(records, geom, stack_link, stack_count, stack_t, tid, base, sp, t
             prefetch(records, link, line)
     else:
         prefetch_prim(geom, link)
+    row = unsigned(tid)
     slot = sp
     if nearest_first:
-        while slot > base and stack_t[tid, slot - 1] < t:
-            stack_link[tid, slot] = stack_link[tid, slot - 1]
-            stack_count[tid, slot] = stack_count[tid, slot - 1]
-            stack_t[tid, slot] = stack_t[tid, slot - 1]
+        while slot > base and stack_t[row, unsigned(slot - 1)] < t:
+            above, below = unsigned(slot), unsigned(slot - 1)
+            stack_link[row, above] = stack_link[row, below]
+            stack_count[row, above] = stack_count[row, below]
+            stack_t[row, above] = stack_t[row, below]
             slot -= 1
-    stack_link[tid, slot] = link
-    stack_count[tid, slot] = word
-    stack_t[tid, slot] = t
+    stack_link[row, unsigned(slot)] = link
+    stack_count[row, unsigned(slot)] = word
+    stack_t[row, unsigned(slot)] = t
     return sp + 1
 
 
@@ -74,7 +76,8 @@ def visit_leaf(mode, action, row, kind, geom, prim_order, first, count, ray, t_m
     tests = 0
     for k in range(first, first + count):
         tests += 1
-        best_t, best_prim, best_u, best_v, stop = visit_prim_in_mode(mode, action, row, kind, geom, k, prim_order[k],
+        best_t, best_prim, best_u, best_v, stop = visit_prim_in_mode(mode, action, row, kind, geom, k,
+                                                                     prim_order[unsigned(k)],
                                                                      ray, t_min, best_t, best_prim, best_u, best_v,
                                                                      any_hit)
         if stop:
@@ -98,6 +101,7 @@ def _walk(ray_first, ray_end, tid, root_box, records, links, prim_order, kind, g
     count_work = work.shape[0] > 0
     nearest_first = not any_hit and mode == NEAREST
     child_entry = entry[tid]
+    stack_row = unsigned(tid)
     for i in range(ray_first, ray_end):
         row = result_row(hit_slot, i)
         ray_t_min, ray_t_max = ray_limit(t_min, i), ray_limit(t_max, i)
@@ -129,17 +133,17 @@ def _walk(ray_first, ray_end, tid, root_box, records, links, prim_order, kind, g
             if entered != 0:
                 c = highest_bit(entered)
                 entered ^= 1 << c
-                if entered == 0 and links[node, COUNT + c] == 0:
-                    node = links[node, LINK + c]
+                if entered == 0 and child_count(links, node, c) == 0:
+                    node = child_link(links, node, c)
                     continue
                 base = sp
                 while True:
-                    if entered == 0 and not nearest_first and links[node, COUNT + c] == 0:
-                        node = links[node, LINK + c]
+                    if entered == 0 and not nearest_first and child_count(links, node, c) == 0:
+                        node = child_link(links, node, c)
                         break
-                    count = links[node, COUNT + c]
-                    sp = push_child(records, geom, stack_link, stack_count, stack_t, tid, base, sp, child_entry[c],
-                                    links[node, LINK + c], count, count, nearest_first)
+                    count = child_count(links, node, c)
+                    sp = push_child(records, geom, stack_link, stack_count, stack_t, tid, base, sp,
+                                    child_entry[unsigned(c)], child_link(links, node, c), count, count, nearest_first)
                     if entered == 0:
                         node = -1
                         break
@@ -150,16 +154,17 @@ def _walk(ray_first, ray_end, tid, root_box, records, links, prim_order, kind, g
             node = -1
             while sp > 0:
                 sp -= 1
-                if stack_t[tid, sp] > best_t:
+                top = unsigned(sp)
+                if stack_t[stack_row, top] > best_t:
                     continue
-                count = stack_count[tid, sp]
+                count = stack_count[stack_row, top]
                 if count == 0:
-                    node = stack_link[tid, sp]
+                    node = stack_link[stack_row, top]
                     break
                 n_nodes += 1
                 n_leaves += 1
                 best_t, best_prim, best_u, best_v, tests = visit_leaf(mode, action, row, kind, geom, prim_order,
-                                                                      stack_link[tid, sp], count, ray, ray_t_min,
+                                                                      stack_link[stack_row, top], count, ray, ray_t_min,
                                                                       best_t, best_prim, best_u, best_v, any_hit)
                 n_tests += tests
                 if any_hit and best_prim >= 0:

@@ -33,9 +33,9 @@ from __future__ import annotations
 import numpy as np
 from numba import prange
 
-from ..._jit import inline_kernel, kernel, parallel_kernel
+from ..._jit import inline_kernel, kernel, parallel_kernel, unsigned
 
-__all__ = ["WIDTH", "LINK", "COUNT", "wide_tree", "wide_records", "wide_depth"]
+__all__ = ["WIDTH", "LINK", "COUNT", "child_link", "child_count", "wide_tree", "wide_records", "wide_depth"]
 
 WIDTH = 8
 LINK = 6 * WIDTH
@@ -44,6 +44,19 @@ COUNT = 7 * WIDTH
 """Column of child 0's primitive count in a record."""
 UNUSED = -1
 _RECORD_BYTES = 4 * 8 * WIDTH
+
+
+@inline_kernel
+def child_link(links, node, c):
+    """Child ``c``'s link in wide record ``node`` of ``links`` (the records seen as int32): the
+    wide node it is, or the leaf order row of its first primitive."""
+    return links[unsigned(node), unsigned(LINK + c)]
+
+
+@inline_kernel
+def child_count(links, node, c):
+    """Child ``c``'s primitive count in wide record ``node``: 0 for an inner node."""
+    return links[unsigned(node), unsigned(COUNT + c)]
 
 
 @kernel
