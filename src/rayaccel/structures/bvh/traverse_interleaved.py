@@ -79,10 +79,9 @@ def _finish(mode, action, work, row, best_t, best_prim, best_u, best_v, n_nodes,
 @inline_kernel
 def _take_ray(slot, next_ray, ray_end, ints, floats, root_box, origins, directions, t_min, t_max, hit_slot, mode,
               action, work):
-    """Put the next ray of the chunk that enters the whole tree's box into ``slot``, at the root,
-    finishing the rays before it as misses; returns the index after it. The slot is left free
-    (ray -1) when the chunk has no ray left."""
-    ints[slot, _RAY] = -1
+    """Put the next ray of the chunk that enters the whole tree's box into free ``slot``, at the
+    root, finishing the rays before it as misses; returns the index after it. The slot stays
+    free (ray -1) when the chunk has no ray left."""
     while next_ray < ray_end:
         i = next_ray
         next_ray += 1
@@ -133,16 +132,22 @@ def _walk(ray_first, ray_end, tid, root_box, records, links, prim_order, kind, g
     ints = slot_ints[tid]
     floats = slot_floats[tid]
     next_ray = ray_first
-    in_flight = 0
     for slot in range(slots):
-        next_ray = _take_ray(slot, next_ray, ray_end, ints, floats, root_box, origins, directions, t_min, t_max,
-                             hit_slot, mode, action, work)
-        in_flight += ints[slot, _RAY] >= 0
-    while in_flight > 0:
+        ints[slot, _RAY] = -1
+    in_flight = True
+    while in_flight:
+        in_flight = False
         for slot in range(slots):
             i = ints[slot, _RAY]
             if i < 0:
-                continue
+                if next_ray == ray_end:
+                    continue
+                next_ray = _take_ray(slot, next_ray, ray_end, ints, floats, root_box, origins, directions, t_min,
+                                     t_max, hit_slot, mode, action, work)
+                i = ints[slot, _RAY]
+                if i < 0:
+                    continue
+            in_flight = True
             stack = unsigned(tid * slots + slot)
             sp = ints[slot, _SP]
             link = ints[slot, _LINK]
@@ -191,9 +196,7 @@ def _walk(ray_first, ray_end, tid, root_box, records, links, prim_order, kind, g
                 continue
             _finish(mode, action, work, result_row(hit_slot, i), best_t, ints[slot, _PRIM], floats[slot, _BEST_U],
                     floats[slot, _BEST_V], ints[slot, _NODES], ints[slot, _TESTS], ints[slot, _LEAVES])
-            next_ray = _take_ray(slot, next_ray, ray_end, ints, floats, root_box, origins, directions, t_min, t_max,
-                                 hit_slot, mode, action, work)
-            in_flight -= ints[slot, _RAY] < 0
+            ints[slot, _RAY] = -1
 
 
 @chunk_kernel
