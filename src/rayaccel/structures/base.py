@@ -14,6 +14,7 @@ from ..rays import WORK_COLUMNS, AllHits, Camera, Hits, RayBatch, RayCounters, p
 from ..scene import SPHERE, PrimitiveBounds, Spheres, TriangleMesh
 from .actions import NEAREST, hit_count, hit_list, intersect_references, is_closer, nearest_hit, store_hit
 from .grid.mailbox import MailboxPool
+from .hit_slots import kept_hits
 from .point_queries import PointQueries, any_dask
 
 __all__ = ["Accelerator", "is_closer", "intersect_references", "store_hit", "settled_before", "walk_rays",
@@ -210,8 +211,7 @@ class Accelerator(PointQueries):
         size = slots[0] if max_hits is None else min(max_hits, slots[0])
         counts, t, prim, u, v = self._listed(batch, np.arange(n + 1, dtype=np.int64) * size)
         full = counts == size if max_hits is None or max_hits > size else np.zeros(n, dtype=bool)
-        kept = np.flatnonzero(np.arange(size) < np.where(full, 0, counts)[:, None])
-        t, prim, u, v = (array[kept] for array in (t, prim, u, v))
+        t, prim, u, v = kept_hits(size, np.where(full, 0, counts), t, prim, u, v)
         if not full.any():
             return counts, t, prim, u, v
         rows = np.flatnonzero(full)
