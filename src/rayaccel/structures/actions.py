@@ -61,9 +61,9 @@ import numpy as np
 from .._jit import inline_kernel
 from ..geometry.primitive import cross_prim, intersect_prim
 
-__all__ = ["NEAREST", "COUNT", "LIST", "WINDING", "Action", "nearest_hit", "hit_count", "hit_list", "signed_crossings",
-           "is_closer", "store_hit", "visit_prim", "visit_prim_in_mode", "finish_ray", "finish_ray_in_mode",
-           "intersect_references"]
+__all__ = ["NEAREST", "COUNT", "LIST", "WINDING", "Action", "nearest_hit", "hit_count", "hit_list", "hit_slots",
+           "signed_crossings", "is_closer", "store_hit", "visit_prim", "visit_prim_in_mode", "finish_ray",
+           "finish_ray_in_mode", "intersect_references"]
 
 NEAREST = 0
 COUNT = 1
@@ -78,7 +78,8 @@ class Action(NamedTuple):
     best hit of row ``r`` (:func:`finish_ray` writes every row). COUNT: ``count`` (n,) int64, crossings of row
     ``r`` (starting at 0); WINDING: signed crossings there, in half units. LIST: row ``r``
     fills ``t, prim, u, v[offsets[r]:offsets[r + 1]]``, ``count[r]`` (starting at 0) of them
-    so far. Arrays a mode does not use are empty.
+    so far; or, when ``offsets`` holds one number ``size``, the ``size`` slots ``r, r + n, r +
+    2n, ...`` (:func:`hit_slots`). Arrays a mode does not use are empty.
     """
 
     mode: int
@@ -117,6 +118,23 @@ def hit_list(offsets, fill, t, prim, u, v) -> Action:
     return Action(LIST, t, prim, u, v, fill, offsets)
 
 
+def hit_slots(size, fill, t, prim, u, v) -> Action:
+    """The listing action with ``size`` slots for each of the n rows, slot ``j`` of row ``r`` at
+    ``j * n + r`` in ``t, prim, u, v`` (n * size,): the rows' first slots lie side by side, so
+    that rows with few hits, most of them in most batches, leave the later slots untouched."""
+    return Action(LIST, t, prim, u, v, fill, np.array([size], dtype=np.int64))
+
+
+@inline_kernel
+def _slots(action, row):
+    """``(first, capacity, stride)``: where row ``row``'s list starts, its length, and the step
+    from one of its slots to the next."""
+    if action.offsets.shape[0] == 1:
+        return row, action.offsets[0], action.count.shape[0]
+    first = action.offsets[row]
+    return first, action.offsets[row + 1] - first, 1
+
+
 @inline_kernel
 def is_closer(t, prim, best_t, best_prim):
     """Whether a hit ``(t, prim)`` replaces the best so far. Equal distances go to
@@ -141,25 +159,28 @@ def store_hit(i, t, prim, u, v, out_t, out_prim, out_u, out_v):
 def _insert(action, row, t, prim, u, v):
     """Put the crossing ``(t, prim)`` into row ``row``'s sorted slots, dropping the farthest when they
     are full (or the crossing itself, when it is the farthest); returns whether they are full."""
-    first = action.offsets[row]
-    capacity = action.offsets[row + 1] - first
+    first, capacity, stride = _slots(action, row)
     filled = action.count[row]
     if capacity == 0:
         return False
     if filled == capacity:
-        last = first + capacity - 1
+        last = first + (capacity - 1) * stride
         if not (t < action.t[last] or (t == action.t[last] and prim < action.prim[last])):
             return True
-        slot = last
+        j = capacity - 1
     else:
-        slot = first + filled
+        j = filled
         action.count[row] = filled + 1
-    while slot > first and (action.t[slot - 1] > t or (action.t[slot - 1] == t and action.prim[slot - 1] > prim)):
-        action.t[slot] = action.t[slot - 1]
-        action.prim[slot] = action.prim[slot - 1]
-        action.u[slot] = action.u[slot - 1]
-        action.v[slot] = action.v[slot - 1]
-        slot -= 1
+    while j > 0:
+        before, slot = first + (j - 1) * stride, first + j * stride
+        if not (action.t[before] > t or (action.t[before] == t and action.prim[before] > prim)):
+            break
+        action.t[slot] = action.t[before]
+        action.prim[slot] = action.prim[before]
+        action.u[slot] = action.u[before]
+        action.v[slot] = action.v[before]
+        j -= 1
+    slot = first + j * stride
     action.t[slot] = t
     action.prim[slot] = prim
     action.u[slot] = u
@@ -200,7 +221,8 @@ def visit_prim_in_mode(mode, action, row, kind, geom, k, prim, ray, t_min, best_
     if n == 2:
         full = _insert(action, row, t_second, prim, u, v)
     if full:
-        last = action.offsets[row + 1] - 1
+        first, capacity, stride = _slots(action, row)
+        last = first + (capacity - 1) * stride
         return action.t[last], action.prim[last], best_u, best_v, False
     return best_t, best_prim, best_u, best_v, False
 

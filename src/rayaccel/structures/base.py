@@ -12,7 +12,7 @@ from ..geometry.sphere import sphere_hit_coords
 from ..ray_order import coherent_batch, sorting_pays
 from ..rays import WORK_COLUMNS, AllHits, Camera, Hits, RayBatch, RayCounters, prepare_rays
 from ..scene import SPHERE, PrimitiveBounds, Spheres, TriangleMesh
-from .actions import NEAREST, hit_count, hit_list, intersect_references, is_closer, nearest_hit, store_hit
+from .actions import NEAREST, hit_count, hit_list, hit_slots, intersect_references, is_closer, nearest_hit, store_hit
 from .grid.mailbox import MailboxPool
 from .hit_slots import kept_hits
 from .point_queries import PointQueries, any_dask
@@ -198,7 +198,8 @@ class Accelerator(PointQueries):
         slots, and so may have more hits, are walked again, with the next size of ``slots``;
         after the last, by a counting walk that sizes their slots exactly and a listing walk
         that fills them. Most rays of most scenes have few hits and are walked once instead
-        of twice (a count, then a list); the slots take 32 bytes each while the query runs."""
+        of twice (a count, then a list); the slots take 32 bytes each while the query runs,
+        slot-major (:func:`.actions.hit_slots`)."""
         n = len(rays.origins)
         batch = self._ordered(rays, reorder)
         if not slots:
@@ -209,9 +210,11 @@ class Accelerator(PointQueries):
             np.cumsum(counts, out=offsets[1:])
             return counts, *self._listed(batch, offsets)[1:]
         size = slots[0] if max_hits is None else min(max_hits, slots[0])
-        counts, t, prim, u, v = self._listed(batch, np.arange(n + 1, dtype=np.int64) * size)
+        counts = np.zeros(n, dtype=np.int64)
+        t, prim, u, v = np.empty(n * size), np.empty(n * size, dtype=np.int64), np.empty(n * size), np.empty(n * size)
+        self._trace(batch, False, hit_slots(size, counts, t, prim, u, v), np.zeros((0, 3), dtype=np.int64))
         full = counts == size if max_hits is None or max_hits > size else np.zeros(n, dtype=bool)
-        t, prim, u, v = kept_hits(size, np.where(full, 0, counts), t, prim, u, v)
+        t, prim, u, v = kept_hits(np.where(full, 0, counts), t, prim, u, v)
         if not full.any():
             return counts, t, prim, u, v
         rows = np.flatnonzero(full)
