@@ -36,9 +36,13 @@ Measured on the full dragon (2**18 rays, bvh-binned, interleaved medians, load a
 incoherent rays 1.48 s with a counting and a listing walk, 1.07 s with (4, 32), 0.90 s with
 (8, 64); camera rays 0.42, 0.29 and 0.25 s."""
 
-LIST_BATCH = 1 << 20
-"""Rays listed at a time by :meth:`Accelerator.intersect_all`: their first slots take at most
-``32 * LIST_SLOTS[0] * LIST_BATCH`` bytes (256 MiB)."""
+LIST_BATCH = 1 << 17
+"""Rays listed at a time by :meth:`Accelerator.intersect_all`, whose first slots, reused from
+one batch to the next, take ``32 * LIST_SLOTS[0] * LIST_BATCH`` bytes (32 MiB). Fresh slots for
+2**20 rays at once (256 MiB, which numpy asks the kernel to back with huge pages) made the first
+touch of their pages the slowest part of many calls. Full dragon, 2**20 rays, medians of 6 calls
+(camera / incoherent rays): batches of 2**15 rays 177 / 534 ms, 2**16 151 / 507, 2**17 134 / 479,
+2**18 131 / 480, 2**20 299 / 739 ms (single calls 87-332 ms on camera rays)."""
 
 
 @inline_kernel
@@ -57,6 +61,11 @@ def walk_rays(walk, n_rays: int, *args) -> None:
     picks the chunk's rows of per-thread stacks and mailboxes."""
     chunk = max(RAY_CHUNK, -(-n_rays // (CHUNKS_PER_THREAD * thread_count())))
     share_among_threads(lambda first, end, tid: walk(first, end, tid, *args), n_rays, chunk)
+
+
+def _slot_arrays(m: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Uninitialised ``(t, prim, u, v)`` of ``m`` listing slots."""
+    return np.empty(m), np.empty(m, dtype=np.int64), np.empty(m), np.empty(m)
 
 
 class Accelerator(PointQueries):
@@ -175,10 +184,11 @@ class Accelerator(PointQueries):
         :meth:`_nearest_hits` with the slot sizes :data:`LIST_SLOTS`, over pieces of at most
         :data:`LIST_BATCH` rays, which bounds the memory the slots take."""
         pieces = []
+        slots = _slot_arrays(min(len(rays.origins), LIST_BATCH) * LIST_SLOTS[0])
         for start in range(0, max(len(rays.origins), 1), LIST_BATCH):
             piece = RayBatch(*(array[start:start + LIST_BATCH] for array in rays[:4]),
                              np.arange(min(LIST_BATCH, len(rays.origins) - start), dtype=np.int64))
-            pieces.append(self._nearest_hits(piece, max_hits, reorder, LIST_SLOTS))
+            pieces.append(self._nearest_hits(piece, max_hits, reorder, LIST_SLOTS, slots))
         counts, t, prim, u, v = pieces[0] if len(pieces) == 1 else (np.concatenate(field) for field in zip(*pieces))
         offsets = np.zeros(len(counts) + 1, dtype=np.int64)
         np.cumsum(counts, out=offsets[1:])
@@ -188,7 +198,7 @@ class Accelerator(PointQueries):
             sphere_hit_coords(self.scene.geometry, rays.origins[ray], rays.directions[ray], t, prim, u, v)
         return AllHits(offsets, t, prim, u, v, np.zeros(m, dtype=np.int64))
 
-    def _nearest_hits(self, rays, max_hits, reorder, slots):
+    def _nearest_hits(self, rays, max_hits, reorder, slots, scratch=None):
         """``(counts, t, prim, u, v)``: each ray's nearest hits (all of them, or ``max_hits``), flat
         and in ray order.
 
@@ -199,7 +209,8 @@ class Accelerator(PointQueries):
         after the last, by a counting walk that sizes their slots exactly and a listing walk
         that fills them. Most rays of most scenes have few hits and are walked once instead
         of twice (a count, then a list); the slots take 32 bytes each while the query runs,
-        slot-major (:func:`.actions.hit_slots`)."""
+        slot-major (:func:`.actions.hit_slots`), in ``scratch`` (four arrays from
+        :func:`_slot_arrays`) when it is large enough."""
         n = len(rays.origins)
         batch = self._ordered(rays, reorder)
         if not slots:
@@ -211,7 +222,9 @@ class Accelerator(PointQueries):
             return counts, *self._listed(batch, offsets)[1:]
         size = slots[0] if max_hits is None else min(max_hits, slots[0])
         counts = np.zeros(n, dtype=np.int64)
-        t, prim, u, v = np.empty(n * size), np.empty(n * size, dtype=np.int64), np.empty(n * size), np.empty(n * size)
+        if scratch is None or len(scratch[0]) < n * size:
+            scratch = _slot_arrays(n * size)
+        t, prim, u, v = (array[:n * size] for array in scratch)
         self._trace(batch, False, hit_slots(size, counts, t, prim, u, v), np.zeros((0, 3), dtype=np.int64))
         full = counts == size if max_hits is None or max_hits > size else np.zeros(n, dtype=bool)
         t, prim, u, v = kept_hits(np.where(full, 0, counts), t, prim, u, v)
