@@ -184,7 +184,7 @@ class Accelerator(PointQueries):
         :meth:`_nearest_hits` with the slot sizes :data:`LIST_SLOTS`, over pieces of at most
         :data:`LIST_BATCH` rays, which bounds the memory the slots take."""
         pieces = []
-        slots = _slot_arrays(min(len(rays.origins), LIST_BATCH) * LIST_SLOTS[0])
+        slots = _slot_arrays(min(len(rays.origins), LIST_BATCH) * LIST_SLOTS[0]) if LIST_SLOTS else None
         for start in range(0, max(len(rays.origins), 1), LIST_BATCH):
             piece = RayBatch(*(array[start:start + LIST_BATCH] for array in rays[:4]),
                              np.arange(min(LIST_BATCH, len(rays.origins) - start), dtype=np.int64))
