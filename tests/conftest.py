@@ -101,3 +101,14 @@ def assert_one_and_twin_triangles_hit(method):
     assert hits.prim[0] == 0 and hits.t[0] == pytest.approx(1.0)
     twins = ra.TriangleMesh(corners, [[0, 1, 2], [0, 1, 2]])
     assert ra.build(twins, method).intersect([[0.2, 0.2, 1.0]], [[0, 0, -1.0]]).prim[0] == 0
+
+
+def assert_counts_and_lists_match(reference, accel, origins, directions):
+    """``accel`` counts and lists (all hits, and the nearest two) what ``reference`` does."""
+    np.testing.assert_array_equal(accel.count(origins, directions), reference.count(origins, directions))
+    for max_hits in (None, 2):
+        expected = reference.intersect_all(origins, directions, max_hits=max_hits)
+        found = accel.intersect_all(origins, directions, max_hits=max_hits)
+        np.testing.assert_array_equal(found.offsets, expected.offsets)
+        np.testing.assert_array_equal(found.prim, expected.prim)
+        np.testing.assert_allclose(found.t, expected.t, rtol=1e-12)

@@ -5,7 +5,14 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from conftest import assert_same_hits, axis_parallel_rays, camera_rays, random_rays, vertex_and_edge_rays
+from conftest import (
+    assert_counts_and_lists_match,
+    assert_same_hits,
+    axis_parallel_rays,
+    camera_rays,
+    random_rays,
+    vertex_and_edge_rays,
+)
 
 import rayaccel as ra
 from rayaccel.ray_order import interleaving_pays, second_level_cache_bytes
@@ -83,13 +90,7 @@ def test_interleaved_count_list_and_contains(small_dragon, every_batch_interleav
     counts signed crossings, through the interleaved walk."""
     origins, directions = random_rays(small_dragon, 1500, seed=9)
     brute, interleaved, single = brute_interleaved_single(small_dragon)
-    np.testing.assert_array_equal(interleaved.count(origins, directions), brute.count(origins, directions))
-    for max_hits in (None, 2):
-        expected = brute.intersect_all(origins, directions, max_hits=max_hits)
-        found = interleaved.intersect_all(origins, directions, max_hits=max_hits)
-        np.testing.assert_array_equal(found.offsets, expected.offsets)
-        np.testing.assert_array_equal(found.prim, expected.prim)
-        np.testing.assert_allclose(found.t, expected.t, rtol=1e-12)
+    assert_counts_and_lists_match(brute, interleaved, origins, directions)
     points = origins[:500]
     np.testing.assert_array_equal(interleaved.contains(points), single.contains(points))
 

@@ -4,7 +4,14 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from conftest import assert_same_hits, axis_parallel_rays, camera_rays, random_rays, vertex_and_edge_rays
+from conftest import (
+    assert_counts_and_lists_match,
+    assert_same_hits,
+    axis_parallel_rays,
+    camera_rays,
+    random_rays,
+    vertex_and_edge_rays,
+)
 
 import rayaccel as ra
 from rayaccel.ray_order import MIN_PACKET_RAYS, packets_pay
@@ -80,10 +87,4 @@ def test_packets_count_and_list_what_brute_force_does(small_dragon, every_batch_
     """Counting and listing (all hits and the nearest few) in packets."""
     origins, directions = camera_rays(small_dragon, 33) if rays == "camera" else random_rays(small_dragon, 1500, 9)
     brute, packets, _ = brute_and_packets(small_dragon)
-    np.testing.assert_array_equal(packets.count(origins, directions), brute.count(origins, directions))
-    for max_hits in (None, 2):
-        expected = brute.intersect_all(origins, directions, max_hits=max_hits)
-        found = packets.intersect_all(origins, directions, max_hits=max_hits)
-        np.testing.assert_array_equal(found.offsets, expected.offsets)
-        np.testing.assert_array_equal(found.prim, expected.prim)
-        np.testing.assert_allclose(found.t, expected.t, rtol=1e-12)
+    assert_counts_and_lists_match(brute, packets, origins, directions)
