@@ -34,7 +34,8 @@ Twelve slots: on two cores, closest hit on the full dragon took 200, 200,
 each of three queries and two runs); one core gained little beyond six.
 Shadow rays from a camera's hits, whose neighbours start close together and
 share their nodes, are not interleaved: on the full dragon they ran at
-1.03-1.05 of the single walk with eight slots, on dragon-203k at 0.94-0.95.
+1.02-1.03 of the single walk on one core and 0.96-0.97 on two, on dragon-203k
+at 0.94-0.95 (eight slots).
 Hence :func:`rayaccel.ray_order.interleaving_pays`.
 """
 
