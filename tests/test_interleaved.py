@@ -76,13 +76,14 @@ def test_batches_with_fewer_rays_than_slots(small_dragon, every_batch_interleave
 
 
 def test_interleaved_spheres_match_brute_force(spheres, every_batch_interleaved):
+    """Closest and any hit on spheres (the walk's steps do not depend on the primitive kind; counting
+    and listing through it are tested on the mesh, which spares compiling their kernel for spheres)."""
     origins, directions = random_rays(spheres, 2000, seed=4)
     t_min, t_max = with_own_intervals(origins)
     brute, interleaved, _ = brute_interleaved_single(spheres)
     reference = brute.intersect(origins, directions, t_min, t_max)
     assert_same_hits(reference, interleaved.intersect(origins, directions, t_min, t_max))
     np.testing.assert_array_equal(interleaved.occluded(origins, directions, t_min, t_max), reference.hit)
-    np.testing.assert_array_equal(interleaved.count(origins, directions), brute.count(origins, directions))
 
 
 def test_interleaved_count_list_and_contains(small_dragon, every_batch_interleaved):
