@@ -13,7 +13,7 @@ from ...geometry.gather import layout_nbytes, layout_rows
 from ...geometry.kdop import KDOP_NORMALS, kdop_surface_areas
 from ...ray_order import interleaving_pays, packets_pay
 from ...stats import surface_area_stats
-from ..actions import NEAREST
+from ..actions import COUNT, NEAREST
 from ..base import Accelerator, walk_rays
 from .binary_from_wide import binary_from_wide, slot_depths
 from .build_ploc import build_ploc
@@ -30,11 +30,12 @@ from .traverse_interleaved import (
     SLOT_FLOATS,
     SLOT_INTS,
     SLOTS,
+    interleaved_count_kernel,
     interleaved_crossings_kernel,
     interleaved_nearest_kernel,
 )
 from .traverse_packet import LANE_ROWS, wide_packet_crossings_kernel, wide_packet_kernel
-from .traverse_wide import wide_crossings_kernel, wide_nearest_kernel
+from .traverse_wide import wide_count_kernel, wide_crossings_kernel, wide_nearest_kernel
 from .volumes import fit_kdops, fit_spheres
 from .wide import WIDTH, wide_records, wide_tree
 
@@ -224,14 +225,16 @@ class BoundingVolumeHierarchy(Accelerator):
                       thread_rows((rows, LANE_ROWS * PACKET)), thread_rows((rows, BOUND_VALUES)),
                       thread_rows((rows, PACKET), np.int64), action)
         elif self.options.get("interleave", True) and interleaving_pays(batch, *self.scene_box, self.nbytes):
-            walk_rays(interleaved_nearest_kernel if nearest else interleaved_crossings_kernel, len(batch.origins),
-                      self.root_record, *tree, *batch, any_hit, *self._wide_stacks(rows * SLOTS),
-                      thread_rows((rows, WIDTH)), SLOTS, thread_rows((rows, SLOTS, SLOT_INTS), np.int64),
-                      thread_rows((rows, SLOTS, SLOT_FLOATS)), action, work)
-        else:
-            walk_rays(wide_nearest_kernel if nearest else wide_crossings_kernel, len(batch.origins),
-                      self.root_record, *tree, *batch, any_hit, *self._wide_stacks(rows), thread_rows((rows, WIDTH)),
+            walk = {NEAREST: interleaved_nearest_kernel, COUNT: interleaved_count_kernel}.get(
+                action.mode, interleaved_crossings_kernel)
+            walk_rays(walk, len(batch.origins), self.root_record, *tree, *batch, any_hit,
+                      *self._wide_stacks(rows * SLOTS), thread_rows((rows, WIDTH)), SLOTS,
+                      thread_rows((rows, SLOTS, SLOT_INTS), np.int64), thread_rows((rows, SLOTS, SLOT_FLOATS)),
                       action, work)
+        else:
+            walk = {NEAREST: wide_nearest_kernel, COUNT: wide_count_kernel}.get(action.mode, wide_crossings_kernel)
+            walk_rays(walk, len(batch.origins), self.root_record, *tree, *batch, any_hit, *self._wide_stacks(rows),
+                      thread_rows((rows, WIDTH)), action, work)
 
     def _wide_stacks(self, rows: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``rows`` stacks deep enough for the eight-wide walks: the entries' links, primitive

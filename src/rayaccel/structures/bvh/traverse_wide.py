@@ -33,12 +33,12 @@ from ..._jit import chunk_kernel, inline_kernel, prefetch, unsigned
 from ...geometry.gather import prefetch_prim
 from ...geometry.primitive import ray_setup
 from ...rays import ray_limit, result_row
-from ..actions import NEAREST, finish_ray_in_mode, visit_prim_in_mode
+from ..actions import COUNT, NEAREST, finish_ray_in_mode, visit_prim_in_mode
 from .traverse import enter_box
 from .wide import child_count, child_link
 from .wide_slab import enter_children, highest_bit
 
-__all__ = ["wide_nearest_kernel", "wide_crossings_kernel", "push_child", "visit_leaf"]
+__all__ = ["wide_nearest_kernel", "wide_count_kernel", "wide_crossings_kernel", "push_child", "visit_leaf"]
 
 
 @inline_kernel
@@ -189,9 +189,18 @@ def wide_nearest_kernel(ray_first, ray_end, tid, root_box, records, links, prim_
 
 
 @chunk_kernel
+def wide_count_kernel(ray_first, ray_end, tid, root_box, records, links, prim_order, kind, geom, origins, directions,
+                      t_min, t_max, hit_slot, any_hit, stack_link, stack_count, stack_t, entry, action, work):
+    """The counting walk (an action of mode ``COUNT``), the other modes' code pruned (see
+    :func:`.traverse_interleaved.interleaved_count_kernel` for what that gained)."""
+    _walk(ray_first, ray_end, tid, root_box, records, links, prim_order, kind, geom, origins, directions, t_min,
+          t_max, hit_slot, any_hit, stack_link, stack_count, stack_t, entry, COUNT, action, work)
+
+
+@chunk_kernel
 def wide_crossings_kernel(ray_first, ray_end, tid, root_box, records, links, prim_order, kind, geom, origins,
                           directions, t_min, t_max, hit_slot, any_hit, stack_link, stack_count, stack_t, entry, action,
                           work):
-    """The walk for the other actions (counting, listing, winding), compiled at their first use."""
+    """The walk for the other actions (listing, winding), compiled at their first use."""
     _walk(ray_first, ray_end, tid, root_box, records, links, prim_order, kind, geom, origins, directions, t_min,
           t_max, hit_slot, any_hit, stack_link, stack_count, stack_t, entry, action.mode, action, work)
