@@ -14,7 +14,7 @@ from ..rays import WORK_COLUMNS, AllHits, Camera, Hits, RayBatch, RayCounters, p
 from ..scene import SPHERE, PrimitiveBounds, Spheres, TriangleMesh
 from .actions import NEAREST, hit_count, hit_list, hit_slots, intersect_references, is_closer, nearest_hit, store_hit
 from .grid.mailbox import MailboxPool
-from .hit_slots import kept_hits
+from .hit_slots import hit_arrays, kept_hits
 from .point_queries import PointQueries, any_dask
 
 __all__ = ["Accelerator", "is_closer", "intersect_references", "store_hit", "settled_before", "walk_rays",
@@ -61,11 +61,6 @@ def walk_rays(walk, n_rays: int, *args) -> None:
     picks the chunk's rows of per-thread stacks and mailboxes."""
     chunk = max(RAY_CHUNK, -(-n_rays // (CHUNKS_PER_THREAD * thread_count())))
     share_among_threads(lambda first, end, tid: walk(first, end, tid, *args), n_rays, chunk)
-
-
-def _slot_arrays(m: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Uninitialised ``(t, prim, u, v)`` of ``m`` listing slots."""
-    return np.empty(m), np.empty(m, dtype=np.int64), np.empty(m), np.empty(m)
 
 
 class Accelerator(PointQueries):
@@ -184,7 +179,7 @@ class Accelerator(PointQueries):
         :meth:`_nearest_hits` with the slot sizes :data:`LIST_SLOTS`, over pieces of at most
         :data:`LIST_BATCH` rays, which bounds the memory the slots take."""
         pieces = []
-        slots = _slot_arrays(min(len(rays.origins), LIST_BATCH) * LIST_SLOTS[0]) if LIST_SLOTS else None
+        slots = hit_arrays(min(len(rays.origins), LIST_BATCH) * LIST_SLOTS[0]) if LIST_SLOTS else None
         for start in range(0, max(len(rays.origins), 1), LIST_BATCH):
             piece = RayBatch(*(array[start:start + LIST_BATCH] for array in rays[:4]),
                              np.arange(min(LIST_BATCH, len(rays.origins) - start), dtype=np.int64))
@@ -210,7 +205,7 @@ class Accelerator(PointQueries):
         that fills them. Most rays of most scenes have few hits and are walked once instead
         of twice (a count, then a list); the slots take 32 bytes each while the query runs,
         slot-major (:func:`.actions.hit_slots`), in ``scratch`` (four arrays from
-        :func:`_slot_arrays`) when it is large enough."""
+        :func:`.hit_slots.hit_arrays`) when it is large enough."""
         n = len(rays.origins)
         batch = self._ordered(rays, reorder)
         if not slots:
@@ -223,7 +218,7 @@ class Accelerator(PointQueries):
         size = slots[0] if max_hits is None else min(max_hits, slots[0])
         counts = np.zeros(n, dtype=np.int64)
         if scratch is None or len(scratch[0]) < n * size:
-            scratch = _slot_arrays(n * size)
+            scratch = hit_arrays(n * size)
         t, prim, u, v = (array[:n * size] for array in scratch)
         self._trace(batch, False, hit_slots(size, counts, t, prim, u, v), np.zeros((0, 3), dtype=np.int64))
         full = counts == size if max_hits is None or max_hits > size else np.zeros(n, dtype=bool)
@@ -248,7 +243,7 @@ class Accelerator(PointQueries):
         of its rows, each row's ``fill`` nearest hits first in its slots, sorted by ``(t, prim)``."""
         m = int(offsets[-1])
         fill = np.zeros(len(offsets) - 1, dtype=np.int64)
-        t, prim, u, v = np.empty(m), np.empty(m, dtype=np.int64), np.empty(m), np.empty(m)
+        t, prim, u, v = hit_arrays(m)
         if m:
             self._trace(batch, False, hit_list(offsets, fill, t, prim, u, v), np.zeros((0, 3), dtype=np.int64))
         return fill, t, prim, u, v

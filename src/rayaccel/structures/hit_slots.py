@@ -5,9 +5,9 @@ A listing walk (:meth:`.base.Accelerator._nearest_hits`) gives each of its n ray
 and fills each ray's first ones, nearest first. What the caller keeps is, ray
 after ray, the filled slots of the rays that did not fill all of theirs (the
 others are walked again with more). One serial pass copies them, each ray's run
-after the previous one's; done with numpy (a boolean mask over every slot, its
-indices, then four fancy-indexed gathers) this took 30-40 ms of the 125 ms an
-``intersect_all`` of 1024² camera rays on the full dragon took.
+after the previous one's, in 6-8 ms for 1024² camera rays on the full dragon; done
+with numpy (a boolean mask over every slot, its indices, then four fancy-indexed
+gathers) the same took about 27 ms of a 135 ms ``intersect_all`` (under cProfile).
 """
 
 from __future__ import annotations
@@ -16,7 +16,12 @@ import numpy as np
 
 from .._jit import kernel
 
-__all__ = ["kept_hits"]
+__all__ = ["hit_arrays", "kept_hits"]
+
+
+def hit_arrays(m: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Uninitialised ``(t, prim, u, v)`` for ``m`` hits (or listing slots)."""
+    return np.empty(m), np.empty(m, dtype=np.int64), np.empty(m), np.empty(m)
 
 
 @kernel
@@ -37,7 +42,7 @@ def kept_hits(kept: np.ndarray, t, prim, u, v):
     starts = np.zeros(len(kept), dtype=np.int64)
     np.cumsum(kept[:-1], out=starts[1:])
     m = int(starts[-1] + kept[-1]) if len(kept) else 0
-    out = (np.empty(m), np.empty(m, dtype=np.int64), np.empty(m), np.empty(m))
+    out = hit_arrays(m)
     if m:
         _copy_runs(kept, starts, t, prim, u, v, *out)
     return out

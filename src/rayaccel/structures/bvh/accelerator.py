@@ -42,6 +42,13 @@ from .wide import WIDTH, wide_records, wide_tree
 __all__ = ["BVH_CLASSES"]
 
 _BOUNDS = {"aabb": BOX, "sphere": SPHERE_VOLUME, "kdop": KDOP}
+
+# The eight-wide walks compiled for one action mode, its constant pruning the others' code; any
+# other mode takes the walk compiled for every mode.
+_PACKET_WALKS = {NEAREST: wide_packet_kernel}
+_INTERLEAVED_WALKS = {NEAREST: interleaved_nearest_kernel, COUNT: interleaved_count_kernel}
+_WIDE_WALKS = {NEAREST: wide_nearest_kernel, COUNT: wide_count_kernel}
+
 # Node volumes are grown by this fraction of the scene's size (coordinates
 # included): the slab test's rounding, about 1e-16 of the coordinates, can then
 # never cull a node that a ray only touches, such as one at a vertex it aims at.
@@ -217,22 +224,20 @@ class BoundingVolumeHierarchy(Accelerator):
                       b.node_records.view(np.int32), b.prim_order, self.scene.kind, self.geometry, KDOP_NORMALS,
                       *batch, any_hit, stack_node, stack_t, action, work)
             return
-        nearest = action.mode == NEAREST
         tree = (self.wide, self.wide.view(np.int32), self.prim_order, self.scene.kind, self.geometry)
         if work.shape[0] == 0 and self.options.get("packets", True) and packets_pay(batch, *self.scene_box):
-            walk_rays(wide_packet_kernel if nearest else wide_packet_crossings_kernel, len(batch.origins), *tree,
-                      *batch, any_hit, *self._wide_stacks(rows), thread_rows((rows, WIDTH)),
-                      thread_rows((rows, LANE_ROWS * PACKET)), thread_rows((rows, BOUND_VALUES)),
-                      thread_rows((rows, PACKET), np.int64), action)
+            walk = _PACKET_WALKS.get(action.mode, wide_packet_crossings_kernel)
+            walk_rays(walk, len(batch.origins), *tree, *batch, any_hit, *self._wide_stacks(rows),
+                      thread_rows((rows, WIDTH)), thread_rows((rows, LANE_ROWS * PACKET)),
+                      thread_rows((rows, BOUND_VALUES)), thread_rows((rows, PACKET), np.int64), action)
         elif self.options.get("interleave", True) and interleaving_pays(batch, *self.scene_box, self.nbytes):
-            walk = {NEAREST: interleaved_nearest_kernel, COUNT: interleaved_count_kernel}.get(
-                action.mode, interleaved_crossings_kernel)
+            walk = _INTERLEAVED_WALKS.get(action.mode, interleaved_crossings_kernel)
             walk_rays(walk, len(batch.origins), self.root_record, *tree, *batch, any_hit,
                       *self._wide_stacks(rows * SLOTS), thread_rows((rows, WIDTH)), SLOTS,
                       thread_rows((rows, SLOTS, SLOT_INTS), np.int64), thread_rows((rows, SLOTS, SLOT_FLOATS)),
                       action, work)
         else:
-            walk = {NEAREST: wide_nearest_kernel, COUNT: wide_count_kernel}.get(action.mode, wide_crossings_kernel)
+            walk = _WIDE_WALKS.get(action.mode, wide_crossings_kernel)
             walk_rays(walk, len(batch.origins), self.root_record, *tree, *batch, any_hit, *self._wide_stacks(rows),
                       thread_rows((rows, WIDTH)), action, work)
 

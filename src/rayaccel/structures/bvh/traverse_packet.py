@@ -28,9 +28,9 @@ import numpy as np
 from ..._jit import chunk_kernel, inline_kernel
 from ...geometry.primitive import ray_setup
 from ...rays import ray_limit, result_row
-from ..actions import NEAREST, finish_ray_in_mode, visit_prim_in_mode
+from ..actions import NEAREST, finish_ray_in_mode
 from .packet_slab import BOUND_BEST, BOUND_T_MIN, PACKET, enter_child_lanes, enter_children_interval
-from .traverse_wide import push_child
+from .traverse_wide import push_child, visit_leaf
 from .wide import child_count, child_link
 from .wide_slab import highest_bit
 
@@ -153,14 +153,12 @@ def _packet_walk(ray_first, ray_end, tid, records, links, prim_order, kind, geom
                         prim_r = best_prim[r]
                         best_u = state[_U + r]
                         best_v = state[_V + r]
-                        row = result_row(hit_slot, i)
-                        for k in range(first, first + count):
-                            best_t, prim_r, best_u, best_v, stop = visit_prim_in_mode(
-                                mode, action, row, kind, geom, k, prim_order[k], ray, state[_T_MIN + r], best_t,
-                                prim_r, best_u, best_v, any_hit)
-                            if stop:
-                                done |= 1 << r
-                                break
+                        best_t, prim_r, best_u, best_v, _ = visit_leaf(mode, action, result_row(hit_slot, i), kind,
+                                                                       geom, prim_order, first, count, ray,
+                                                                       state[_T_MIN + r], best_t, prim_r, best_u,
+                                                                       best_v, any_hit)
+                        if any_hit and prim_r >= 0:
+                            done |= 1 << r
                         if prim_r != best_prim[r] or best_t != state[_BEST + r]:
                             improved = True
                             state[_BEST + r] = best_t
