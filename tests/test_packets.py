@@ -14,16 +14,19 @@ from conftest import (
 )
 
 import rayaccel as ra
-from rayaccel.ray_order import MIN_PACKET_RAYS, packets_pay
+from rayaccel.ray_order import MIN_PACKET_RAYS, lane_packets_pay, packets_pay
 from rayaccel.rays import prepare_rays
 from rayaccel.structures.bvh import accelerator
 
 
-@pytest.fixture
-def every_batch_in_packets(monkeypatch):
+@pytest.fixture(params=["shared origin", "by lane"])
+def every_batch_in_packets(monkeypatch, request):
     """Incoherent batches too, so that packets of mixed directions, rays through vertices and
-    edges and axis-parallel rays walk the packet kernel."""
-    monkeypatch.setattr(accelerator, "packets_pay", lambda batch, lo, hi: True)
+    edges and axis-parallel rays walk each packet kernel: the one whose box test bounds the
+    packet as a whole and the one that tests its rays lane by lane."""
+    by_lane = request.param == "by lane"
+    monkeypatch.setattr(accelerator, "packets_pay", lambda batch, lo, hi: not by_lane)
+    monkeypatch.setattr(accelerator, "lane_packets_pay", lambda batch, lo, hi: by_lane)
 
 
 def brute_and_packets(scene):
@@ -43,10 +46,41 @@ def test_camera_packets_of_every_fill_match_brute_force(small_dragon, extra):
     np.testing.assert_array_equal(packets.occluded(origins, directions), brute.occluded(origins, directions))
 
 
+def shadow_rays(scene, side):
+    """Rays from the hits of a camera's rays toward a point light above the scene, the light at
+    ``t = 1``, as a renderer casts them."""
+    origins, directions = camera_rays(scene, side)
+    hits = ra.build(scene, "bvh-binned").intersect(origins, directions)
+    points = origins[hits.hit] + hits.t[hits.hit, None] * directions[hits.hit]
+    b = scene.bounds()
+    light = 0.5 * (b.scene_lo + b.scene_hi) + np.array([0.3, 2.0, 0.5]) * (b.scene_hi - b.scene_lo)
+    return points, light - points
+
+
+@pytest.mark.parametrize("extra", range(8))
+def test_shadow_rays_in_packets_of_every_fill_match_brute_force(small_dragon, extra):
+    """Shadow rays from neighbouring hits to one light are traced in packets tested lane by lane
+    without asking; batches of every length modulo the packet size end in a partial packet."""
+    origins, directions = shadow_rays(small_dragon, 160)
+    origins, directions = origins[:MIN_PACKET_RAYS + extra], directions[:MIN_PACKET_RAYS + extra]
+    b = small_dragon.bounds()
+    batch = prepare_rays(origins, directions)
+    assert lane_packets_pay(batch, b.scene_lo, b.scene_hi) and not packets_pay(batch, b.scene_lo, b.scene_hi)
+    brute, packets, single = brute_and_packets(small_dragon)
+    for t_min, t_max in ((1e-6, 1.0), (0.0, np.inf)):
+        reference = brute.intersect(origins, directions, t_min, t_max)
+        assert reference.hit.any() and not reference.hit.all()
+        assert_same_hits(reference, packets.intersect(origins, directions, t_min, t_max))
+        np.testing.assert_array_equal(packets.occluded(origins, directions, t_min, t_max), reference.hit)
+        np.testing.assert_array_equal(single.occluded(origins, directions, t_min, t_max), reference.hit)
+
+
 def test_incoherent_batches_are_not_packed(small_dragon):
     b = small_dragon.bounds()
-    assert not packets_pay(prepare_rays(*random_rays(small_dragon, 5000)), b.scene_lo, b.scene_hi)
-    assert not packets_pay(prepare_rays(*camera_rays(small_dragon, 16)), b.scene_lo, b.scene_hi)
+    for rays in (random_rays(small_dragon, 5000), camera_rays(small_dragon, 16)):
+        batch = prepare_rays(*rays)
+        assert not packets_pay(batch, b.scene_lo, b.scene_hi)
+        assert not lane_packets_pay(batch, b.scene_lo, b.scene_hi)
 
 
 @pytest.mark.parametrize("rays", ["random", "vertices_and_edges", "axis_parallel"])

@@ -51,7 +51,7 @@ from .counting_sort import chunk_range, counts_to_starts
 from .rays import RayBatch, result_row
 
 __all__ = ["MIN_RAYS", "MIN_PACKET_RAYS", "coherent_batch", "last_level_cache_bytes", "second_level_cache_bytes",
-           "sorting_pays", "packets_pay", "interleaving_pays"]
+           "sorting_pays", "packets_pay", "lane_packets_pay", "interleaving_pays"]
 
 MIN_RAYS = 1 << 15
 """Batches smaller than this are traced as given: the sort would cost more than it saves."""
@@ -59,6 +59,7 @@ MIN_RAYS = 1 << 15
 MIN_PACKET_RAYS = 1024
 """Batches smaller than this are traced ray by ray (the coherence test itself would be most of the work)."""
 _PACKET_ANGLE = 0.02
+_LANE_PACKET_ANGLE = 0.1
 
 _DEFAULT_CACHE_BYTES = 32 << 20
 _DEFAULT_L2_BYTES = 1 << 20
@@ -152,6 +153,20 @@ def packets_pay(batch: RayBatch, scene_lo, scene_hi) -> bool:
     if _median_origin_step(batch, sample) > 1e-9 * float(np.max(scene_hi - scene_lo)):
         return False
     return _median_neighbour_cosine(batch, sample) >= np.cos(_PACKET_ANGLE)
+
+
+def lane_packets_pay(batch: RayBatch, scene_lo, scene_hi) -> bool:
+    """Whether a batch is coherent enough to trace in packets of consecutive rays tested lane by
+    lane: at least :data:`MIN_PACKET_RAYS` rays, half of the sampled neighbours or more starting
+    within ``1/64`` of the scene's size of each other and heading within :data:`_LANE_PACKET_ANGLE`
+    radians, as shadow rays from neighbouring hits to one light do."""
+    n = len(batch.origins)
+    if n < MIN_PACKET_RAYS:
+        return False
+    sample = _neighbour_sample(n)
+    if _median_origin_step(batch, sample) > _NEARBY * float(np.max(scene_hi - scene_lo)):
+        return False
+    return _median_neighbour_cosine(batch, sample) >= np.cos(_LANE_PACKET_ANGLE)
 
 
 def interleaving_pays(batch: RayBatch, scene_lo, scene_hi, structure_bytes: int) -> bool:

@@ -11,7 +11,7 @@ from ..._jit import thread_count, thread_rows
 from ..._validate import check_number
 from ...geometry.gather import layout_nbytes, layout_rows
 from ...geometry.kdop import KDOP_NORMALS, kdop_surface_areas
-from ...ray_order import interleaving_pays, packets_pay
+from ...ray_order import interleaving_pays, lane_packets_pay, packets_pay
 from ...stats import surface_area_stats
 from ..actions import COUNT, NEAREST
 from ..base import Accelerator, walk_rays
@@ -34,7 +34,13 @@ from .traverse_interleaved import (
     interleaved_crossings_kernel,
     interleaved_nearest_kernel,
 )
-from .traverse_packet import LANE_ROWS, wide_packet_crossings_kernel, wide_packet_kernel
+from .traverse_packet import (
+    LANE_ROWS,
+    lane_packet_crossings_kernel,
+    lane_packet_kernel,
+    wide_packet_crossings_kernel,
+    wide_packet_kernel,
+)
 from .traverse_wide import wide_count_kernel, wide_crossings_kernel, wide_nearest_kernel
 from .volumes import fit_kdops, fit_spheres
 from .wide import WIDTH, wide_records, wide_tree
@@ -46,6 +52,7 @@ _BOUNDS = {"aabb": BOX, "sphere": SPHERE_VOLUME, "kdop": KDOP}
 # The eight-wide walks compiled for one action mode, its constant pruning the others' code; any
 # other mode takes the walk compiled for every mode.
 _PACKET_WALKS = {NEAREST: wide_packet_kernel}
+_LANE_PACKET_WALKS = {NEAREST: lane_packet_kernel}
 _INTERLEAVED_WALKS = {NEAREST: interleaved_nearest_kernel, COUNT: interleaved_count_kernel}
 _WIDE_WALKS = {NEAREST: wide_nearest_kernel, COUNT: wide_count_kernel}
 
@@ -225,8 +232,12 @@ class BoundingVolumeHierarchy(Accelerator):
                       *batch, any_hit, stack_node, stack_t, action, work)
             return
         tree = (self.wide, self.wide.view(np.int32), self.prim_order, self.scene.kind, self.geometry)
-        if work.shape[0] == 0 and self.options.get("packets", True) and packets_pay(batch, *self.scene_box):
-            walk = _PACKET_WALKS.get(action.mode, wide_packet_crossings_kernel)
+        packets = work.shape[0] == 0 and self.options.get("packets", True)
+        if packets and (packets_pay(batch, *self.scene_box) or lane_packets_pay(batch, *self.scene_box)):
+            if packets_pay(batch, *self.scene_box):
+                walk = _PACKET_WALKS.get(action.mode, wide_packet_crossings_kernel)
+            else:
+                walk = _LANE_PACKET_WALKS.get(action.mode, lane_packet_crossings_kernel)
             walk_rays(walk, len(batch.origins), *tree, *batch, any_hit, *self._wide_stacks(rows),
                       thread_rows((rows, WIDTH)), thread_rows((rows, LANE_ROWS * PACKET)),
                       thread_rows((rows, BOUND_VALUES)), thread_rows((rows, PACKET), np.int64), action)

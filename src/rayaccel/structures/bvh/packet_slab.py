@@ -32,7 +32,7 @@ from .wide import WIDTH
 from .wide_slab import entered_children, tighten_lanes
 
 __all__ = ["PACKET", "PACKET_ROWS", "BOUND_T_MIN", "BOUND_BEST", "BOUND_VALUES", "enter_children_interval",
-           "enter_child_lanes"]
+           "enter_child_lanes", "enter_children_by_lane"]
 
 PACKET = 8
 """Rays per packet, one per vector lane."""
@@ -138,3 +138,61 @@ def enter_child_lanes(typingctx, records, node, child, state, lanes):
         return builder.and_(entered, context.cast(builder, lane_bits, sig.args[4], types.int64))
 
     return signature, codegen
+
+
+@intrinsic
+def enter_children_by_lane(typingctx, records, node, state, lanes, entry):
+    """Each ray of the packet in ``lanes`` (bit ``r`` for lane ``r``) against the eight child
+    boxes of wide ``node``, as :func:`.wide_slab.enter_children` tests one ray, in float64:
+    returns the children each ray enters before its best hit, byte ``r`` of the result for
+    lane ``r`` (bit ``c`` for child ``c``; 0 for a lane not in ``lanes``), and writes into
+    ``entry[c]`` the nearest entry into child ``c`` of those rays (``inf`` where none enters).
+    ``state`` holds the packet's :data:`PACKET_ROWS` rows of :data:`PACKET` float64. The rays
+    may point to either side along any axis; their tests are independent of each other, so
+    the processor overlaps them."""
+    signature = types.int64(records, node, state, lanes, entry)
+
+    def codegen(context, builder, sig, args):
+        array, node_index, state_array, lane_bits, entry_array = args
+        intp = context.get_value_type(types.intp)
+        int64 = ir.IntType(64)
+        floats = ir.VectorType(ir.FloatType(), WIDTH)
+        doubles = ir.VectorType(ir.DoubleType(), WIDTH)
+        row = _record_row(context, builder, sig.args[0], array, sig.args[1], node_index)
+        state_data = context.make_array(sig.args[2])(context, builder, state_array).data
+        active = context.cast(builder, lane_bits, sig.args[3], types.int64)
+        boxes = []
+        for block in range(6):
+            pointer = builder.gep(row, [ir.Constant(intp, WIDTH * block)])
+            boxes.append(builder.fpext(builder.load(builder.bitcast(pointer, floats.as_pointer()), align=32), doubles))
+        missed = ir.Constant(doubles, [float("inf")] * WIDTH)
+        nearest = missed
+        word = int64(0)
+        for lane in range(PACKET):
+            def value(state_row):
+                return builder.load(builder.gep(state_data, [ir.Constant(intp, state_row * PACKET + lane)]))
+
+            enter = _splat(builder, value(6), doubles)
+            exit_ = _splat(builder, value(7), doubles)
+            for axis in range(3):
+                origin, inverse = value(axis), value(axis + 3)
+                positive = builder.fcmp_ordered(">=", inverse, ir.Constant(ir.DoubleType(), 0.0))
+                near_box = builder.select(positive, boxes[axis], boxes[axis + 3])
+                far_box = builder.select(positive, boxes[axis + 3], boxes[axis])
+                o, inv = _splat(builder, origin, doubles), _splat(builder, inverse, doubles)
+                near = builder.fmul(builder.fsub(near_box, o), inv)
+                far = builder.fmul(builder.fsub(far_box, o), inv)
+                enter, exit_ = tighten_lanes(builder, near, far, enter, exit_)
+            in_lanes = builder.trunc(builder.lshr(active, int64(lane)), ir.IntType(1))
+            entered = builder.and_(builder.fcmp_ordered("<=", enter, exit_),
+                                   _splat(builder, in_lanes, ir.VectorType(ir.IntType(1), WIDTH)))
+            lane_entry = builder.select(entered, enter, missed)
+            nearest = builder.select(builder.fcmp_ordered("<", lane_entry, nearest), lane_entry, nearest)
+            children = builder.zext(builder.bitcast(entered, ir.IntType(WIDTH)), int64)
+            word = builder.or_(word, builder.shl(children, int64(8 * lane)))
+        entry_view = context.make_array(sig.args[4])(context, builder, entry_array)
+        builder.store(nearest, builder.bitcast(entry_view.data, doubles.as_pointer()), align=8)
+        return word
+
+    return signature, codegen
+

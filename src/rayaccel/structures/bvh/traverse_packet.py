@@ -25,16 +25,24 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..._jit import chunk_kernel, inline_kernel
+from ..._jit import chunk_kernel, inline_kernel, unsigned
 from ...geometry.primitive import ray_setup
 from ...rays import ray_limit, result_row
 from ..actions import NEAREST, finish_ray_in_mode
-from .packet_slab import BOUND_BEST, BOUND_T_MIN, PACKET, enter_child_lanes, enter_children_interval
+from .packet_slab import (
+    BOUND_BEST,
+    BOUND_T_MIN,
+    PACKET,
+    enter_child_lanes,
+    enter_children_by_lane,
+    enter_children_interval,
+)
 from .traverse_wide import push_child, visit_leaf
 from .wide import child_count, child_link
 from .wide_slab import highest_bit
 
-__all__ = ["LANE_ROWS", "wide_packet_kernel", "wide_packet_crossings_kernel"]
+__all__ = ["LANE_ROWS", "wide_packet_kernel", "wide_packet_crossings_kernel", "lane_packet_kernel",
+           "lane_packet_crossings_kernel"]
 
 _LANES_SHIFT = 16
 _COUNT_MASK = (1 << _LANES_SHIFT) - 1
@@ -48,9 +56,34 @@ LANE_ROWS = 10
 
 
 @inline_kernel
+def _transpose_lanes(word):
+    """The 8 x 8 bit matrix ``word`` (byte ``r`` the children lane ``r`` enters) transposed, so
+    that byte ``c`` holds the lanes that enter child ``c`` (Warren, "Hacker's Delight", 2nd ed.,
+    section 7-3: three exchanges of bit blocks)."""
+    x = unsigned(word)
+    t = (x ^ (x >> unsigned(7))) & unsigned(0x00AA00AA00AA00AA)
+    x = x ^ t ^ (t << unsigned(7))
+    t = (x ^ (x >> unsigned(14))) & unsigned(0x0000CCCC0000CCCC)
+    x = x ^ t ^ (t << unsigned(14))
+    t = (x ^ (x >> unsigned(28))) & unsigned(0x00000000F0F0F0F0)
+    x = x ^ t ^ (t << unsigned(28))
+    return x
+
+
+@inline_kernel
+def _any_lane(word):
+    """The children (bit ``c``) that some lane of ``word`` (byte ``r`` per lane) enters."""
+    x = unsigned(word)
+    x |= x >> unsigned(32)
+    x |= x >> unsigned(16)
+    x |= x >> unsigned(8)
+    return np.int64(x & unsigned(0xFF))
+
+
+@inline_kernel
 def _packet_walk(ray_first, ray_end, tid, records, links, prim_order, kind, geom, origins, directions, t_min, t_max,
                  hit_slot, any_hit, stack_link, stack_count, stack_t, entry, lanes_state, bounds_state,
-                 lanes_prim, mode, action):
+                 lanes_prim, by_lane, mode, action):
     """Trace rays ``ray_first`` to ``ray_end - 1`` in packets of :data:`PACKET` consecutive rays
     (the last one partial), with the stacks, child entries, lane state and packet bounds of
     row ``tid``, each stack entry's lanes kept above its primitive count in ``stack_count``;
@@ -76,7 +109,7 @@ def _packet_walk(ray_first, ray_end, tid, records, links, prim_order, kind, geom
             best_prim[r] = -1
             state[_U + r] = 0.0
             state[_V + r] = 0.0
-        group = 1 if mixed else n_lanes
+        group = 1 if mixed and not by_lane else n_lanes
         for group_first in range(0, n_lanes, group):
             active = ((1 << group) - 1) << group_first
             for axis in range(3):
@@ -106,7 +139,13 @@ def _packet_walk(ray_first, ray_end, tid, records, links, prim_order, kind, geom
             sp = 0
             while True:
                 if node >= 0:
-                    children = enter_children_interval(records, node, bounds, child_entry)
+                    if by_lane:
+                        lane_children = enter_children_by_lane(records, node, state, lanes, child_entry)
+                        children = _any_lane(lane_children)
+                        lanes_by_child = _transpose_lanes(lane_children)
+                    else:
+                        children = enter_children_interval(records, node, bounds, child_entry)
+                        lanes_by_child = unsigned(0)
                     base = sp
                     descend = -1
                     while children != 0:
@@ -115,11 +154,14 @@ def _packet_walk(ray_first, ray_end, tid, records, links, prim_order, kind, geom
                         link = child_link(links, node, c)
                         count = child_count(links, node, c)
                         child_lanes = lanes
+                        if by_lane:
+                            child_lanes = np.int64((lanes_by_child >> unsigned(8 * c)) & unsigned(0xFF))
                         if count == 0:
                             if children == 0 and sp == base:
                                 descend = link
+                                lanes = child_lanes
                                 break
-                        else:
+                        elif not by_lane:
                             child_lanes = enter_child_lanes(records, node, c, state, lanes)
                             if child_lanes == 0:
                                 continue
@@ -188,7 +230,7 @@ def wide_packet_kernel(ray_first, ray_end, tid, records, links, prim_order, kind
     code is pruned before it is compiled, as in :func:`.traverse_wide.wide_nearest_kernel`)."""
     _packet_walk(ray_first, ray_end, tid, records, links, prim_order, kind, geom, origins, directions, t_min, t_max,
                  hit_slot, any_hit, stack_link, stack_count, stack_t, entry, lanes_state, bounds_state,
-                 lanes_prim, NEAREST, action)
+                 lanes_prim, False, NEAREST, action)
 
 
 @chunk_kernel
@@ -198,4 +240,24 @@ def wide_packet_crossings_kernel(ray_first, ray_end, tid, records, links, prim_o
     """The packet walk for the other actions (counting, listing), compiled at their first use."""
     _packet_walk(ray_first, ray_end, tid, records, links, prim_order, kind, geom, origins, directions, t_min, t_max,
                  hit_slot, any_hit, stack_link, stack_count, stack_t, entry, lanes_state, bounds_state,
-                 lanes_prim, action.mode, action)
+                 lanes_prim, False, action.mode, action)
+
+
+@chunk_kernel
+def lane_packet_kernel(ray_first, ray_end, tid, records, links, prim_order, kind, geom, origins, directions, t_min,
+                       t_max, hit_slot, any_hit, stack_link, stack_count, stack_t, entry, lanes_state,
+                       bounds_state, lanes_prim, action):
+    """The closest-hit and any-hit walk of packets whose rays are tested lane by lane."""
+    _packet_walk(ray_first, ray_end, tid, records, links, prim_order, kind, geom, origins, directions, t_min, t_max,
+                 hit_slot, any_hit, stack_link, stack_count, stack_t, entry, lanes_state, bounds_state,
+                 lanes_prim, True, NEAREST, action)
+
+
+@chunk_kernel
+def lane_packet_crossings_kernel(ray_first, ray_end, tid, records, links, prim_order, kind, geom, origins,
+                                 directions, t_min, t_max, hit_slot, any_hit, stack_link, stack_count, stack_t, entry,
+                                 lanes_state, bounds_state, lanes_prim, action):
+    """The walk of packets tested lane by lane for the other actions (counting, listing)."""
+    _packet_walk(ray_first, ray_end, tid, records, links, prim_order, kind, geom, origins, directions, t_min, t_max,
+                 hit_slot, any_hit, stack_link, stack_count, stack_t, entry, lanes_state, bounds_state,
+                 lanes_prim, True, action.mode, action)
