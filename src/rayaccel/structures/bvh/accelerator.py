@@ -232,12 +232,13 @@ class BoundingVolumeHierarchy(Accelerator):
                       *batch, any_hit, stack_node, stack_t, action, work)
             return
         tree = (self.wide, self.wide.view(np.int32), self.prim_order, self.scene.kind, self.geometry)
-        packets = work.shape[0] == 0 and self.options.get("packets", True)
-        if packets and (packets_pay(batch, *self.scene_box) or lane_packets_pay(batch, *self.scene_box)):
+        walk = None
+        if work.shape[0] == 0 and self.options.get("packets", True):
             if packets_pay(batch, *self.scene_box):
                 walk = _PACKET_WALKS.get(action.mode, wide_packet_crossings_kernel)
-            else:
+            elif lane_packets_pay(batch, *self.scene_box):
                 walk = _LANE_PACKET_WALKS.get(action.mode, lane_packet_crossings_kernel)
+        if walk is not None:
             walk_rays(walk, len(batch.origins), *tree, *batch, any_hit, *self._wide_stacks(rows),
                       thread_rows((rows, WIDTH)), thread_rows((rows, LANE_ROWS * PACKET)),
                       thread_rows((rows, BOUND_VALUES)), thread_rows((rows, PACKET), np.int64), action)

@@ -32,7 +32,8 @@ from .wide import WIDTH
 from .wide_slab import entered_children, tighten_lanes
 
 __all__ = ["PACKET", "PACKET_ROWS", "BOUND_T_MIN", "BOUND_BEST", "BOUND_VALUES", "enter_children_interval",
-           "enter_child_lanes", "enter_children_by_lane"]
+           "enter_child_lanes", "enter_children_by_lane",
+           "load_packet"]
 
 PACKET = 8
 """Rays per packet, one per vector lane."""
@@ -193,6 +194,73 @@ def enter_children_by_lane(typingctx, records, node, state, lanes, entry):
         entry_view = context.make_array(sig.args[4])(context, builder, entry_array)
         builder.store(nearest, builder.bitcast(entry_view.data, doubles.as_pointer()), align=8)
         return word
+
+    return signature, codegen
+
+
+@intrinsic
+def load_packet(typingctx, origins, directions, first, state, bounds):
+    """Load the :data:`PACKET` rays from row ``first`` of ``origins`` and ``directions`` ((n, 3)
+    C-contiguous float64) into rows 0-5 of ``state`` (origins, then inverse directions, one
+    lane a ray), in vector instructions: three loads of eight float64 per array, shuffled
+    from rows to lanes, and three vector divisions. Returns 1 when the rays point to both
+    sides along some axis, else 0 after writing the packet's interval bounds (rows 0-14 of
+    :data:`BOUND_VALUES`) into ``bounds``, as the scalar set-up of the packet walk computes them."""
+    if origins.layout != "C" or directions.layout != "C":
+        return None
+    signature = types.int64(origins, directions, first, state, bounds)
+
+    def codegen(context, builder, sig, args):
+        origin_array, direction_array, first_row, state_array, bounds_array = args
+        intp = context.get_value_type(types.intp)
+        double = ir.DoubleType()
+        doubles = ir.VectorType(double, PACKET)
+        row = context.cast(builder, first_row, sig.args[2], types.intp)
+
+        def lanes_by_axis(array_type, array):
+            data = context.make_array(array_type)(context, builder, array).data
+            start = builder.gep(data, [builder.mul(row, ir.Constant(intp, 3))])
+            parts = [builder.load(builder.bitcast(builder.gep(start, [ir.Constant(intp, PACKET * k)]),
+                                                  doubles.as_pointer()), align=8) for k in range(3)]
+            low = builder.shuffle_vector(parts[0], parts[1], ir.Constant(ir.VectorType(ir.IntType(32), 2 * PACKET),
+                                                                          list(range(2 * PACKET))))
+            high = builder.shuffle_vector(parts[2], parts[2], ir.Constant(ir.VectorType(ir.IntType(32), 2 * PACKET),
+                                                                           list(range(2 * PACKET))))
+            return [builder.shuffle_vector(low, high, ir.Constant(ir.VectorType(ir.IntType(32), PACKET),
+                                                                  [3 * lane + axis for lane in range(PACKET)]))
+                    for axis in range(3)]
+
+        def reduce(vector, compare):
+            for width in (4, 2, 1):
+                mask = ir.Constant(ir.VectorType(ir.IntType(32), PACKET),
+                                   [(lane + width) % PACKET for lane in range(PACKET)])
+                moved = builder.shuffle_vector(vector, vector, mask)
+                vector = builder.select(builder.fcmp_ordered(compare, moved, vector), moved, vector)
+            return builder.extract_element(vector, ir.IntType(32)(0))
+
+        origin = lanes_by_axis(sig.args[0], origin_array)
+        direction = lanes_by_axis(sig.args[1], direction_array)
+        ones = ir.Constant(doubles, [1.0] * PACKET)
+        inverse = [builder.fdiv(ones, d) for d in direction]
+        state_data = builder.bitcast(context.make_array(sig.args[3])(context, builder, state_array).data,
+                                     doubles.as_pointer())
+        for k, vector in enumerate(origin + inverse):
+            builder.store(vector, builder.gep(state_data, [ir.Constant(intp, k)]), align=8)
+        bounds_data = context.make_array(sig.args[4])(context, builder, bounds_array).data
+        zero = ir.Constant(doubles, [0.0] * PACKET)
+        mixed = ir.IntType(1)(0)
+        for axis in range(3):
+            signs = builder.bitcast(builder.fcmp_ordered(">=", inverse[axis], zero), ir.IntType(PACKET))
+            positive = builder.icmp_unsigned("==", signs, ir.IntType(PACKET)(-1))
+            negative = builder.icmp_unsigned("==", signs, ir.IntType(PACKET)(0))
+            mixed = builder.or_(mixed, builder.not_(builder.or_(positive, negative)))
+            o_low, o_high = reduce(origin[axis], "<"), reduce(origin[axis], ">")
+            values = (builder.select(positive, ir.Constant(double, float(axis)), ir.Constant(double, float(axis + 3))),
+                      builder.select(positive, o_high, o_low), builder.select(positive, o_low, o_high),
+                      reduce(inverse[axis], "<"), reduce(inverse[axis], ">"))
+            for k, value in enumerate(values):
+                builder.store(value, builder.gep(bounds_data, [ir.Constant(intp, 5 * axis + k)]))
+        return builder.zext(mixed, ir.IntType(64))
 
     return signature, codegen
 

@@ -36,6 +36,7 @@ from .packet_slab import (
     enter_child_lanes,
     enter_children_by_lane,
     enter_children_interval,
+    load_packet,
 )
 from .traverse_wide import push_child, visit_leaf
 from .wide import child_count, child_link
@@ -96,14 +97,20 @@ def _packet_walk(ray_first, ray_end, tid, records, links, prim_order, kind, geom
     nearest_first = not any_hit and mode == NEAREST
     for packet_first in range(ray_first, ray_end, PACKET):
         n_lanes = min(PACKET, ray_end - packet_first)
-        mixed = False
+        loaded = n_lanes == PACKET
+        if loaded:
+            mixed = load_packet(origins, directions, packet_first, state, bounds) != 0
+        else:
+            mixed = False
+            for r in range(PACKET):
+                i = packet_first + min(r, n_lanes - 1)
+                for axis in range(3):
+                    inverse = 1.0 / directions[i, axis]
+                    state[axis * PACKET + r] = origins[i, axis]
+                    state[(axis + 3) * PACKET + r] = inverse
+                    mixed |= (inverse >= 0.0) != (state[(axis + 3) * PACKET] >= 0.0)
         for r in range(PACKET):
             i = packet_first + min(r, n_lanes - 1)
-            for axis in range(3):
-                inverse = 1.0 / directions[i, axis]
-                state[axis * PACKET + r] = origins[i, axis]
-                state[(axis + 3) * PACKET + r] = inverse
-                mixed |= (inverse >= 0.0) != (state[(axis + 3) * PACKET] >= 0.0)
             state[_T_MIN + r] = ray_limit(t_min, i)
             state[_BEST + r] = ray_limit(t_max, i)
             best_prim[r] = -1
@@ -113,6 +120,8 @@ def _packet_walk(ray_first, ray_end, tid, records, links, prim_order, kind, geom
         for group_first in range(0, n_lanes, group):
             active = ((1 << group) - 1) << group_first
             for axis in range(3):
+                if by_lane or (loaded and not mixed):
+                    break
                 positive = state[(axis + 3) * PACKET + group_first] >= 0.0
                 o_low, o_high = np.inf, -np.inf
                 inv_low, inv_high = np.inf, -np.inf
