@@ -145,7 +145,7 @@ def packets_pay(batch: RayBatch, scene_lo, scene_hi) -> bool:
     radians of each other, as a pinhole camera's rays through neighbouring pixels do.
     Shadow rays from neighbouring hits to one light start apart, on the surface, where the
     bounds of eight of them (:mod:`.structures.bvh.packet_slab`) cull little: the full dragon's
-    ran at 0.3 of their single-ray speed in packets."""
+    ran at 0.3 of their single-ray speed in such packets; :func:`lane_packets_pay` takes them."""
     n = len(batch.origins)
     if n < MIN_PACKET_RAYS:
         return False

@@ -99,10 +99,12 @@ class BoundingVolumeHierarchy(Accelerator):
         describe the binary tree; the node counter counts the nodes walked.
         (Files saved with the former ``width=4`` load as ``width=8``.)
     packets : bool, default True
-        With the eight-wide walk, trace a batch whose rays share an origin and head
-        alike, as a pinhole camera's do (:func:`rayaccel.ray_order.packets_pay`), in
-        packets of eight consecutive rays (:mod:`rayaccel.structures.bvh.traverse_packet`);
-        ``False`` walks every ray on its own. The answers are the same either way.
+        With the eight-wide walk, trace a coherent batch in packets of eight consecutive
+        rays (:mod:`rayaccel.structures.bvh.traverse_packet`): rays that share an origin and
+        head alike, as a pinhole camera's do (:func:`rayaccel.ray_order.packets_pay`), against
+        bounds of the whole packet; rays that start near each other and head alike, as shadow
+        rays from neighbouring hits to one light do (:func:`rayaccel.ray_order.lane_packets_pay`),
+        lane by lane. ``False`` walks every ray on its own. The answers are the same either way.
     interleave : bool, default True
         With the eight-wide walk, trace a batch of incoherent rays through a tree larger
         than the caches (:func:`rayaccel.ray_order.interleaving_pays`) with several rays
@@ -321,10 +323,11 @@ class BoundingVolumeHierarchy(Accelerator):
 
 def _top_down(pb, strategy, max_leaf_size, c_t, c_i, bins=0, order=None, sorted_codes=None):
     """Run the top-down builder with a split strategy; returns the layout arrays and leaf order."""
-    order = np.arange(len(pb.lo), dtype=np.int64) if order is None else order
+    identity = order is None
+    order = np.arange(len(pb.lo), dtype=np.int64) if identity else order
     codes = np.zeros(0, np.int64) if sorted_codes is None else sorted_codes
     box, first, count = build_top_down(pb.lo, pb.hi, pb.centroid, order, codes, strategy, max_leaf_size, bins,
-                                       c_t, c_i, thread_count())
+                                       c_t, c_i, thread_count(), identity_order=identity)
     return box, first, count, order
 
 

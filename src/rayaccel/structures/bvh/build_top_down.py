@@ -35,7 +35,7 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 
 from ..._jit import inline_kernel, kernel
-from .nodes import box_area6, compact, range_bounds
+from .nodes import box_area6, close_gaps, range_bounds
 from .split_median_object import split_object_median
 from .split_median_space import split_spatial_median
 from .split_morton import split_morton
@@ -54,12 +54,13 @@ MORTON = 4
 
 @inline_kernel
 def build_subtrees(strategy, lo, hi, centroid, order, sorted_codes, max_leaf_size, bins, traversal_cost,
-                   intersection_cost, node_box, node_first, node_count, tasks, slots, defer_below, deferred):
+                   intersection_cost, node_box, node_first, node_count, tasks, slots, ends, defer_below, deferred):
     """Build the subtree of every row ``(node, start, end)`` of ``tasks``: over
     ``order[start:end]``, its root in slot ``node`` and its other nodes from slot
-    ``slots[k]`` on. Tasks with fewer than ``defer_below`` primitives met on the way
-    are not built but appended to ``deferred`` as (node, start, end) rows, counted in
-    its row 0. Returns the next free slot after the last task's subtree."""
+    ``slots[k]`` on, up to the slot before ``ends[k]``, which it writes. Tasks with fewer
+    than ``defer_below`` primitives met on the way are not built but appended to
+    ``deferred`` as (node, start, end) rows, counted in its row 0. Returns the next free
+    slot after the last task's subtree."""
     box = np.empty(6)
     centroid_box = np.empty(6)
     scratch_box = np.empty((3 * max(bins, 1), 6))
@@ -132,52 +133,56 @@ def build_subtrees(strategy, lo, hi, centroid, order, sorted_codes, max_leaf_siz
                 task_start[sp + 1] = start
                 task_end[sp + 1] = mid
                 sp += 2
+        ends[k] = next_free
     return next_free
 
 
 @kernel
 def _spatial_median_subtrees(lo, hi, centroid, order, sorted_codes, max_leaf_size, bins, traversal_cost,
-                             intersection_cost, node_box, node_first, node_count, tasks, slots, defer_below, deferred):
+                             intersection_cost, node_box, node_first, node_count, tasks, slots, ends, defer_below,
+                             deferred):
     """:func:`build_subtrees` split at the spatial median."""
     return build_subtrees(SPATIAL_MEDIAN, lo, hi, centroid, order, sorted_codes, max_leaf_size, bins,
                           traversal_cost, intersection_cost, node_box, node_first, node_count, tasks, slots,
-                          defer_below, deferred)
+                          ends, defer_below, deferred)
 
 
 @kernel
 def _object_median_subtrees(lo, hi, centroid, order, sorted_codes, max_leaf_size, bins, traversal_cost,
-                            intersection_cost, node_box, node_first, node_count, tasks, slots, defer_below, deferred):
+                            intersection_cost, node_box, node_first, node_count, tasks, slots, ends, defer_below,
+                             deferred):
     """:func:`build_subtrees` split at the object median."""
     return build_subtrees(OBJECT_MEDIAN, lo, hi, centroid, order, sorted_codes, max_leaf_size, bins,
                           traversal_cost, intersection_cost, node_box, node_first, node_count, tasks, slots,
-                          defer_below, deferred)
+                          ends, defer_below, deferred)
 
 
 @kernel
 def _sah_sweep_subtrees(lo, hi, centroid, order, sorted_codes, max_leaf_size, bins, traversal_cost,
-                        intersection_cost, node_box, node_first, node_count, tasks, slots, defer_below, deferred):
+                        intersection_cost, node_box, node_first, node_count, tasks, slots, ends, defer_below, deferred):
     """:func:`build_subtrees` split by the full-sweep SAH."""
     return build_subtrees(SAH_SWEEP, lo, hi, centroid, order, sorted_codes, max_leaf_size, bins,
                           traversal_cost, intersection_cost, node_box, node_first, node_count, tasks, slots,
-                          defer_below, deferred)
+                          ends, defer_below, deferred)
 
 
 @kernel
 def _sah_binned_subtrees(lo, hi, centroid, order, sorted_codes, max_leaf_size, bins, traversal_cost,
-                         intersection_cost, node_box, node_first, node_count, tasks, slots, defer_below, deferred):
+                         intersection_cost, node_box, node_first, node_count, tasks, slots, ends, defer_below,
+                         deferred):
     """:func:`build_subtrees` split by the binned SAH."""
     return build_subtrees(SAH_BINNED, lo, hi, centroid, order, sorted_codes, max_leaf_size, bins,
                           traversal_cost, intersection_cost, node_box, node_first, node_count, tasks, slots,
-                          defer_below, deferred)
+                          ends, defer_below, deferred)
 
 
 @kernel
 def _morton_subtrees(lo, hi, centroid, order, sorted_codes, max_leaf_size, bins, traversal_cost,
-                     intersection_cost, node_box, node_first, node_count, tasks, slots, defer_below, deferred):
+                     intersection_cost, node_box, node_first, node_count, tasks, slots, ends, defer_below, deferred):
     """:func:`build_subtrees` split where the Morton codes' top differing bit changes."""
     return build_subtrees(MORTON, lo, hi, centroid, order, sorted_codes, max_leaf_size, bins,
                           traversal_cost, intersection_cost, node_box, node_first, node_count, tasks, slots,
-                          defer_below, deferred)
+                          ends, defer_below, deferred)
 
 
 SUBTREE_KERNELS = {SPATIAL_MEDIAN: _spatial_median_subtrees, OBJECT_MEDIAN: _object_median_subtrees,
@@ -186,22 +191,25 @@ SUBTREE_KERNELS = {SPATIAL_MEDIAN: _spatial_median_subtrees, OBJECT_MEDIAN: _obj
 
 
 def build_top_down(lo, hi, centroid, order, sorted_codes, strategy, max_leaf_size, bins,
-                   traversal_cost, intersection_cost, threads):
-    """Build over the primitives in ``order`` (permuted in place into leaf order);
-    the boxes and centroids are copied, then permuted along with ``order``.
+                   traversal_cost, intersection_cost, threads, identity_order=False):
+    """Build over the primitives in ``order`` (permuted in place into leaf order; ``identity_order``
+    says it is ``arange(n)``, which saves gathering the boxes through it); the boxes and centroids
+    are copied, then permuted along with ``order``.
 
     With more than one thread, the top of the tree is built on one thread until the tasks
     left are smaller than ``n / (8 * threads)`` (at least 4096 primitives); those subtrees are
     then built on ``threads`` threads, largest first, each into its own block of node slots
-    (a subtree of m primitives needs at most 2m - 1), and the result is compacted into the
-    canonical layout, which a build on one thread lays out directly.
-    Returns ``(node_box, node_first, node_count)``.
+    (a subtree of m primitives needs at most 2m - 1), and the blocks are moved down to close
+    the gaps between them (:func:`.nodes.close_gaps`: full dragon, 5 ms against 46 ms for
+    renumbering the whole tree depth-first). Either way a node's children lie side by side,
+    after it. Returns ``(node_box, node_first, node_count)``.
     """
     build = SUBTREE_KERNELS[strategy]
     n = order.shape[0]
-    lo = np.ascontiguousarray(lo[order], dtype=np.float64)
-    hi = np.ascontiguousarray(hi[order], dtype=np.float64)
-    centroid = np.ascontiguousarray(centroid[order], dtype=np.float64)
+    if identity_order:
+        lo, hi, centroid = (np.array(values, dtype=np.float64) for values in (lo, hi, centroid))
+    else:
+        lo, hi, centroid = (np.ascontiguousarray(values[order], dtype=np.float64) for values in (lo, hi, centroid))
     workers = 2 * threads
     defer_below = max(n // (4 * workers), 4096) if threads > 1 else 0
     capacity = 4 * n + 1
@@ -212,18 +220,22 @@ def build_top_down(lo, hi, centroid, order, sorted_codes, strategy, max_leaf_siz
     common = (lo, hi, centroid, order, np.ascontiguousarray(sorted_codes, dtype=np.int64), int(max_leaf_size),
               int(bins), float(traversal_cost), float(intersection_cost), node_box, node_first, node_count)
     root = np.array([[0, 0, n]], dtype=np.int64)
-    top_end = build(*common, root, np.ones(1, dtype=np.int64), defer_below, deferred)
+    end = build(*common, root, np.ones(1, dtype=np.int64), np.empty(1, dtype=np.int64), defer_below, deferred)
     tasks = deferred[1:deferred[0, 0] + 1]
-    if len(tasks) == 0:
-        return node_box[:top_end].copy(), node_first[:top_end].copy(), node_count[:top_end].copy()
-    tasks = tasks[np.argsort(tasks[:, 1] - tasks[:, 2], kind="stable")]  # largest first
-    sizes = 2 * (tasks[:, 2] - tasks[:, 1]) - 1
-    slots = top_end + np.cumsum(sizes) - sizes
-    used = int(top_end + sizes.sum())
-    unused = np.zeros((1, 3), dtype=np.int64)
-    shares = [np.arange(worker, len(tasks), workers) for worker in range(min(workers, len(tasks)))]
-    with ThreadPoolExecutor(threads) as pool:
-        list(pool.map(lambda share: build(*common, tasks[share], slots[share], 0, unused), shares))
-    first = node_first[:used].astype(np.int64)
-    return compact(node_box[:used], np.where(node_count[:used] == 0, first, -1), first + 1, first,
-                   node_count[:used].astype(np.int64), 0)
+    if len(tasks):
+        tasks = tasks[np.argsort(tasks[:, 1] - tasks[:, 2], kind="stable")]  # largest first
+        sizes = 2 * (tasks[:, 2] - tasks[:, 1]) - 1
+        slots = end + np.cumsum(sizes) - sizes
+        ends = np.empty(len(tasks), dtype=np.int64)
+        unused = np.zeros((1, 3), dtype=np.int64)
+        shares = [np.arange(worker, len(tasks), workers) for worker in range(min(workers, len(tasks)))]
+
+        def build_share(share):
+            share_ends = np.empty(len(share), dtype=np.int64)
+            build(*common, tasks[share], slots[share], share_ends, 0, unused)
+            ends[share] = share_ends
+
+        with ThreadPoolExecutor(threads) as pool:
+            list(pool.map(build_share, shares))
+        end = close_gaps(node_box, node_first, node_count, end, tasks[:, 0], slots, ends)
+    return node_box[:end].copy(), node_first[:end].copy(), node_count[:end].copy()

@@ -1,4 +1,4 @@
-"""Helpers every builder shares: node boxes, SAH of a split, and depth-first compaction."""
+"""Helpers every builder shares: node boxes, SAH of a split, depth-first compaction and closing gaps."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import numpy as np
 
 from ..._jit import kernel
 
-__all__ = ["box_area6", "longest_axis", "range_bounds", "swap_prims", "permute_prims", "compact", "node_depths",
+__all__ = ["box_area6", "longest_axis", "range_bounds", "swap_prims", "permute_prims", "compact", "close_gaps", "node_depths",
            "box_surface_areas", "sah_cost"]
 
 
@@ -76,6 +76,27 @@ def range_bounds(lo, hi, centroid, start, end, box, centroid_box):
             box[k + 3] = max(box[k + 3], hi[i, k])
             centroid_box[k] = min(centroid_box[k], centroid[i, k])
             centroid_box[k + 3] = max(centroid_box[k + 3], centroid[i, k])
+
+
+@kernel
+def close_gaps(node_box, node_first, node_count, top_end, block_root, block_first, block_end):
+    """Move the blocks of node slots ``[block_first[k], block_end[k])``, in increasing order and
+    each holding the subtree under node ``block_root[k]`` (a node before ``top_end``), down to
+    follow each other from slot ``top_end``, shifting the child links that point into them;
+    returns the number of nodes. Slots only move down, so each is read before it is overwritten."""
+    end = top_end
+    for k in range(block_first.shape[0]):
+        shift = block_first[k] - end
+        if node_count[block_root[k]] == 0:
+            node_first[block_root[k]] -= shift
+        for old in range(block_first[k], block_end[k]):
+            new = old - shift
+            for axis in range(6):
+                node_box[new, axis] = node_box[old, axis]
+            node_count[new] = node_count[old]
+            node_first[new] = node_first[old] - shift if node_count[old] == 0 else node_first[old]
+        end += block_end[k] - block_first[k]
+    return end
 
 
 @kernel

@@ -43,7 +43,8 @@ def _build_cell_bvhs(lo, hi, centroid, order, row_first, row_end, cell_root, max
     unused = np.zeros((1, 3), dtype=np.int64)
     shares = [np.arange(worker, len(tasks), workers) for worker in range(min(workers, len(tasks)))]
     with ThreadPoolExecutor(threads) as pool:
-        list(pool.map(lambda share: build(*common, tasks[share], slots[share], 0, unused), shares))
+        list(pool.map(lambda share: build(*common, tasks[share], slots[share], np.empty(len(share), dtype=np.int64), 0,
+                                           unused), shares))
 
 
 def build_grid_bvh(bounds, kind, geom, density, threshold, max_leaf_size, bins, traversal_cost, intersection_cost,
