@@ -67,6 +67,7 @@ def build_subtrees(strategy, lo, hi, centroid, order, sorted_codes, max_leaf_siz
     scratch_count = np.empty(3 * max(bins, 1), dtype=np.int64)
     scratch_area = np.empty(max(bins, 1))
     scratch_acc = np.empty(6)
+    child_bounds = np.empty((2, 12))
     next_free = 0
     for k in range(tasks.shape[0]):
         next_free = slots[k]
@@ -74,7 +75,10 @@ def build_subtrees(strategy, lo, hi, centroid, order, sorted_codes, max_leaf_siz
         task_node = np.empty(n + 1, dtype=np.int64)
         task_start = np.empty(n + 1, dtype=np.int64)
         task_end = np.empty(n + 1, dtype=np.int64)
+        task_bounds = np.empty((n + 1, 12))
+        task_bounded = np.empty(n + 1, dtype=np.bool_)
         task_node[0] = tasks[k, 0]
+        task_bounded[0] = False
         task_start[0] = tasks[k, 1]
         task_end[0] = tasks[k, 2]
         sp = 1
@@ -91,17 +95,24 @@ def build_subtrees(strategy, lo, hi, centroid, order, sorted_codes, max_leaf_siz
                 deferred[row, 1] = start
                 deferred[row, 2] = end
                 continue
-            range_bounds(lo, hi, centroid, start, end, box, centroid_box)
+            if task_bounded[sp]:
+                for axis in range(6):
+                    box[axis] = task_bounds[sp, axis]
+                    centroid_box[axis] = task_bounds[sp, axis + 6]
+            else:
+                range_bounds(lo, hi, centroid, start, end, box, centroid_box)
             for axis in range(6):
                 node_box[node, axis] = box[axis]
             mid = -1
+            bounded = False
             if count > 1:
                 if strategy == SAH_BINNED or strategy == SAH_SWEEP:
                     area = box_area6(box)
                     if strategy == SAH_BINNED:
                         mid, cost = split_sah_binned(lo, hi, centroid, order, start, end, centroid_box, area, bins,
                                                      traversal_cost, intersection_cost, scratch_box, scratch_count,
-                                                     scratch_area, scratch_acc)
+                                                     scratch_area, scratch_acc, child_bounds)
+                        bounded = mid >= 0
                     else:
                         mid, cost = split_sah_sweep(lo, hi, centroid, order, start, end, area,
                                                     traversal_cost, intersection_cost)
@@ -132,6 +143,12 @@ def build_subtrees(strategy, lo, hi, centroid, order, sorted_codes, max_leaf_siz
                 task_node[sp + 1] = left
                 task_start[sp + 1] = start
                 task_end[sp + 1] = mid
+                task_bounded[sp] = bounded
+                task_bounded[sp + 1] = bounded
+                if bounded:
+                    for axis in range(12):
+                        task_bounds[sp, axis] = child_bounds[1, axis]
+                        task_bounds[sp + 1, axis] = child_bounds[0, axis]
                 sp += 2
         ends[k] = next_free
     return next_free
