@@ -27,9 +27,10 @@ so exactly the boxes each ray enters), and push each entered child with the lane
 enter it (the rays' child masks transposed, Warren's "Hacker's Delight", section 7-3).
 Eight rays' tests are independent of each other, so the processor overlaps them, where
 the single walk waits for each test before the next fetch; the packet still fetches each
-node once. Shadow rays from 1024^2 camera hits, packets against the single walk, one thread,
-closest / any hit: full dragon 1.24 / 1.30, forest 1.32 / 1.35; two threads 1.24 / 1.24 and
-1.16 / 1.18. On camera rays the interval bounds win (lane tests there: 0.92-1.12 of them).
+node once. Shadow rays from 1024^2 camera hits, packets against the single walk, closest / any
+hit, several runs: one thread, forest 1.32-1.43 / 1.35-1.44, full dragon 1.24 / 1.30; two threads,
+full dragon 1.12-1.24 / 1.16-1.24, forest 1.16-1.18 / 1.18-1.23. On camera rays the interval
+bounds win (lane tests there: 0.92-1.12 of them).
 
 Batches that neither :func:`rayaccel.ray_order.packets_pay` nor
 :func:`rayaccel.ray_order.lane_packets_pay` finds coherent keep the single-ray walk of
@@ -97,6 +98,26 @@ def _any_lane(word):
 
 
 @inline_kernel
+def _bound_group(state, bounds, group_first, group):
+    """Write the interval bounds (rows 0-14 of :data:`.packet_slab.BOUND_VALUES`) of the rays in
+    lanes ``group_first`` to ``group_first + group - 1``, whose directions share their signs."""
+    for axis in range(3):
+        positive = state[(axis + 3) * PACKET + group_first] >= 0.0
+        o_low, o_high = np.inf, -np.inf
+        inv_low, inv_high = np.inf, -np.inf
+        for r in range(group_first, group_first + group):
+            o_low = min(o_low, state[axis * PACKET + r])
+            o_high = max(o_high, state[axis * PACKET + r])
+            inv_low = min(inv_low, state[(axis + 3) * PACKET + r])
+            inv_high = max(inv_high, state[(axis + 3) * PACKET + r])
+        bounds[5 * axis] = axis if positive else axis + 3
+        bounds[5 * axis + 1] = o_high if positive else o_low
+        bounds[5 * axis + 2] = o_low if positive else o_high
+        bounds[5 * axis + 3] = inv_low
+        bounds[5 * axis + 4] = inv_high
+
+
+@inline_kernel
 def _packet_walk(ray_first, ray_end, tid, records, links, prim_order, kind, geom, origins, directions, t_min, t_max,
                  hit_slot, any_hit, stack_link, stack_count, stack_t, entry, lanes_state, bounds_state,
                  lanes_prim, by_lane, mode, action):
@@ -134,22 +155,8 @@ def _packet_walk(ray_first, ray_end, tid, records, links, prim_order, kind, geom
         group = 1 if mixed and not by_lane else n_lanes
         for group_first in range(0, n_lanes, group):
             active = ((1 << group) - 1) << group_first
-            for axis in range(3):
-                if by_lane or (loaded and not mixed):
-                    break
-                positive = state[(axis + 3) * PACKET + group_first] >= 0.0
-                o_low, o_high = np.inf, -np.inf
-                inv_low, inv_high = np.inf, -np.inf
-                for r in range(group_first, group_first + group):
-                    o_low = min(o_low, state[axis * PACKET + r])
-                    o_high = max(o_high, state[axis * PACKET + r])
-                    inv_low = min(inv_low, state[(axis + 3) * PACKET + r])
-                    inv_high = max(inv_high, state[(axis + 3) * PACKET + r])
-                bounds[5 * axis] = axis if positive else axis + 3
-                bounds[5 * axis + 1] = o_high if positive else o_low
-                bounds[5 * axis + 2] = o_low if positive else o_high
-                bounds[5 * axis + 3] = inv_low
-                bounds[5 * axis + 4] = inv_high
+            if not (by_lane or (loaded and not mixed)):
+                _bound_group(state, bounds, group_first, group)
             packet_t_min = np.inf
             farthest_best = -np.inf
             for r in range(group_first, group_first + group):
