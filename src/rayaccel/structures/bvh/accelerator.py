@@ -334,14 +334,19 @@ def _top_down(pb, strategy, max_leaf_size, c_t, c_i, bins=0, order=None, sorted_
 class BinnedSah(BoundingVolumeHierarchy):
     """``bvh-binned``: top-down binned SAH (Wald 2007), the default BVH.
 
-    Extra option: ``bins`` (default 16), centroid intervals per axis; more bins
-    get closer to the full sweep and build slower. Leaves up to 8 primitives.
+    Extra option: ``bins`` (default 32), centroid intervals per axis; more bins
+    get closer to the full sweep. A build bins each primitive once per axis whatever
+    their number, so 32 bins cost no more than 16 (full dragon, 2 threads, medians of 5
+    interleaved builds: 490 against 493 ms) and gave a tree of lower SAH cost (forest
+    49.9 against 54.7, full dragon 91.0 against 92.1) that traced 1.00-1.05 times as
+    fast in every column (camera, incoherent and shadow rays, closest and any hit; 2
+    threads, medians of 5). Leaves up to 8 primitives.
     """
 
     method = "bvh-binned"
     default_leaf_size = 8
 
-    def __init__(self, scene, *, bins: int = 16, **options):
+    def __init__(self, scene, *, bins: int = 32, **options):
         bins = check_number("bins", bins, integer=True)
         if bins < 2:
             raise ValueError(f"bins must be at least 2, got {bins}")
