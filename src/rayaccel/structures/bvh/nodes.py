@@ -6,8 +6,8 @@ import numpy as np
 
 from ..._jit import kernel
 
-__all__ = ["box_area6", "longest_axis", "range_bounds", "swap_prims", "permute_prims", "compact", "close_gaps", "node_depths",
-           "box_surface_areas", "sah_cost"]
+__all__ = ["box_area6", "longest_axis", "range_bounds", "swap_prims", "permute_prims", "compact", "close_gaps",
+           "node_depths", "box_surface_areas", "sah_cost"]
 
 
 @kernel

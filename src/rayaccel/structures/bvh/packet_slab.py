@@ -1,6 +1,6 @@
-"""Box tests of a ray packet against a wide node, in vector instructions.
+"""Box tests of a ray packet against a wide node, in vector instructions, and the packet's loading.
 
-Two tests, after Wald, Slusallek, Benthin & Wagner ("Interactive Rendering with
+Three tests, after Wald, Slusallek, Benthin & Wagner ("Interactive Rendering with
 Coherent Ray Tracing", Eurographics 2001: a packet's rays in vector lanes) and Wald,
 Boulos & Shirley ("Ray Tracing Deformable Scenes Using Dynamic Bounding Volume
 Hierarchies", ACM TOG 26(1), 2007: a box culled for a whole packet by interval
@@ -17,9 +17,13 @@ arithmetic over its rays):
   lane a ray, computing what the single-ray test computes for that ray, in float64; the
   packet walk asks it of the leaves the packet enters, so that a ray tests only the
   primitives of leaves it enters itself.
+* :func:`enter_children_by_lane`: each ray of the packet against the eight child boxes,
+  the single-ray test lane after lane, for packets whose rays start apart (shadow rays),
+  where the interval bounds would cull little.
 
-Both keep the single-ray test's NaN-safe bounds (an origin on a slab plane with a zero
+All keep the single-ray test's NaN-safe bounds (an origin on a slab plane with a zero
 direction component gives ``0 * inf``, which never tightens the interval).
+:func:`load_packet` moves eight rays from the caller's rows into the packet's lanes.
 """
 
 from __future__ import annotations
@@ -32,8 +36,7 @@ from .wide import WIDTH
 from .wide_slab import entered_children, tighten_lanes
 
 __all__ = ["PACKET", "PACKET_ROWS", "BOUND_T_MIN", "BOUND_BEST", "BOUND_VALUES", "enter_children_interval",
-           "enter_child_lanes", "enter_children_by_lane",
-           "load_packet"]
+           "enter_child_lanes", "enter_children_by_lane", "load_packet"]
 
 PACKET = 8
 """Rays per packet, one per vector lane."""
