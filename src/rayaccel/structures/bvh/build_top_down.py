@@ -157,7 +157,7 @@ def build_subtrees(strategy, lo, hi, centroid, order, sorted_codes, max_leaf_siz
 @kernel
 def _spatial_median_subtrees(lo, hi, centroid, order, sorted_codes, max_leaf_size, bins, traversal_cost,
                              intersection_cost, node_box, node_first, node_count, tasks, slots, ends, defer_below,
-                             deferred):
+                            deferred):
     """:func:`build_subtrees` split at the spatial median."""
     return build_subtrees(SPATIAL_MEDIAN, lo, hi, centroid, order, sorted_codes, max_leaf_size, bins,
                           traversal_cost, intersection_cost, node_box, node_first, node_count, tasks, slots,
@@ -167,7 +167,7 @@ def _spatial_median_subtrees(lo, hi, centroid, order, sorted_codes, max_leaf_siz
 @kernel
 def _object_median_subtrees(lo, hi, centroid, order, sorted_codes, max_leaf_size, bins, traversal_cost,
                             intersection_cost, node_box, node_first, node_count, tasks, slots, ends, defer_below,
-                             deferred):
+                            deferred):
     """:func:`build_subtrees` split at the object median."""
     return build_subtrees(OBJECT_MEDIAN, lo, hi, centroid, order, sorted_codes, max_leaf_size, bins,
                           traversal_cost, intersection_cost, node_box, node_first, node_count, tasks, slots,
@@ -217,8 +217,8 @@ def build_top_down(lo, hi, centroid, order, sorted_codes, strategy, max_leaf_siz
     left are smaller than ``n / (8 * threads)`` (at least 4096 primitives); those subtrees are
     then built on ``threads`` threads, largest first, each into its own block of node slots
     (a subtree of m primitives needs at most 2m - 1), and the blocks are moved down to close
-    the gaps between them (:func:`.nodes.close_gaps`: full dragon, 5 ms against 46 ms for
-    renumbering the whole tree depth-first). Either way a node's children lie side by side,
+    the gaps between them (:func:`.nodes.close_gaps`: full dragon, 7-11 ms against 46-123 ms
+    for renumbering the whole tree depth-first). Either way a node's children lie side by side,
     after it. Returns ``(node_box, node_first, node_count)``.
     """
     build = SUBTREE_KERNELS[strategy]
