@@ -24,7 +24,7 @@ from rayaccel.structures.bvh.traverse_interleaved import SLOTS
 @pytest.fixture
 def every_batch_interleaved(monkeypatch):
     """Small trees and every kind of batch take the interleaved walk."""
-    monkeypatch.setattr(accelerator, "interleaving_pays", lambda batch, lo, hi, nbytes: True)
+    monkeypatch.setattr(accelerator, "interleaving_pays", lambda batch, lo, hi, nbytes, sampled: True)
 
 
 def brute_interleaved_single(scene, method="bvh-binned"):

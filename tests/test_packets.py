@@ -25,8 +25,8 @@ def every_batch_in_packets(monkeypatch, request):
     edges and axis-parallel rays walk each packet kernel: the one whose box test bounds the
     packet as a whole and the one that tests its rays lane by lane."""
     by_lane = request.param == "by lane"
-    monkeypatch.setattr(accelerator, "packets_pay", lambda batch, lo, hi: not by_lane)
-    monkeypatch.setattr(accelerator, "lane_packets_pay", lambda batch, lo, hi: by_lane)
+    monkeypatch.setattr(accelerator, "packets_pay", lambda batch, lo, hi, sampled: not by_lane)
+    monkeypatch.setattr(accelerator, "lane_packets_pay", lambda batch, lo, hi, sampled: by_lane)
 
 
 def brute_and_packets(scene):

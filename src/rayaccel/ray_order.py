@@ -42,6 +42,7 @@ from __future__ import annotations
 
 import functools
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 from numba import prange
@@ -51,7 +52,8 @@ from .counting_sort import chunk_range, counts_to_starts
 from .rays import RayBatch, result_row
 
 __all__ = ["MIN_RAYS", "MIN_PACKET_RAYS", "coherent_batch", "last_level_cache_bytes", "second_level_cache_bytes",
-           "sorting_pays", "packets_pay", "lane_packets_pay", "interleaving_pays"]
+           "sorting_pays", "Neighbours", "sample_neighbours", "packets_pay", "lane_packets_pay",
+           "interleaving_pays"]
 
 MIN_RAYS = 1 << 15
 """Batches smaller than this are traced as given: the sort would cost more than it saves."""
@@ -59,12 +61,11 @@ MIN_RAYS = 1 << 15
 MIN_PACKET_RAYS = 1024
 """Batches smaller than this are traced ray by ray (the coherence test itself would be most of the work)."""
 _PACKET_ANGLE = 0.02
-_LANE_PACKET_ANGLE = 0.1
+_ALIKE_ANGLE = 0.1
 
 _DEFAULT_CACHE_BYTES = 32 << 20
 _DEFAULT_L2_BYTES = 1 << 20
 _INTERLEAVE_CACHES = 4
-_SPREAD_ANGLE = 0.1
 _BITS_PER_AXIS = 2
 _NEARBY = 1.0 / 64.0
 _SAMPLE = 4096
@@ -122,66 +123,77 @@ def _sort_rays(origins, directions, t_min, t_max, hit_slot, lo, scale, bits_per_
             out_hit_slot[place] = result_row(hit_slot, i)
 
 
-def _neighbour_sample(n: int) -> np.ndarray:
-    """Evenly spaced indices ``i`` of a batch of ``n`` rays whose ray ``i + 1`` is compared with ray ``i``."""
-    return np.arange(0, n - 1, max(1, n // _SAMPLE))
+class Neighbours(NamedTuple):
+    """What consecutive rays of an evenly spaced sample of a batch say about its coherence
+    (:func:`sample_neighbours`): the batch's size, the median over the sampled neighbours of
+    the largest coordinate difference of their origins, the scene's size (its box's longest
+    side) and the median cosine of the angle between the neighbours' directions."""
+
+    rays: int
+    origin_step: float
+    scene_size: float
+    cosine: float
+
+    def start_together(self, fraction: float) -> bool:
+        """Whether half of the sampled neighbours or more start within ``fraction`` of the
+        scene's size of each other."""
+        return self.origin_step <= fraction * self.scene_size
+
+    def head_alike(self, angle: float) -> bool:
+        """Whether half of the sampled neighbours or more head within ``angle`` radians."""
+        return bool(self.cosine >= np.cos(angle))
 
 
-def _median_origin_step(batch: RayBatch, sample: np.ndarray) -> float:
-    """The median, over the sampled neighbours, of the largest coordinate difference of their origins."""
-    return float(np.median(np.abs(batch.origins[sample + 1] - batch.origins[sample]).max(axis=1)))
-
-
-def _median_neighbour_cosine(batch: RayBatch, sample: np.ndarray) -> float:
-    """The median, over the sampled neighbours, of the cosine of the angle between their directions."""
+def sample_neighbours(batch: RayBatch, scene_lo, scene_hi) -> Neighbours:
+    """The :class:`Neighbours` of ``batch`` in a scene whose box is ``scene_lo``..``scene_hi``,
+    from at most :data:`_SAMPLE` pairs of consecutive rays; a batch of fewer than two rays
+    counts as coherent. A walk's choices (:func:`packets_pay`, :func:`lane_packets_pay`,
+    :func:`interleaving_pays`) share one sample."""
+    n = len(batch.origins)
+    scene_size = float(np.max(scene_hi - scene_lo))
+    if n < 2:
+        return Neighbours(n, 0.0, scene_size, 1.0)
+    sample = np.arange(0, n - 1, max(1, n // _SAMPLE))
+    step = np.median(np.abs(batch.origins[sample + 1] - batch.origins[sample]).max(axis=1))
     d0, d1 = batch.directions[sample], batch.directions[sample + 1]
-    return float(np.median((d0 * d1).sum(axis=1) / (np.linalg.norm(d0, axis=1) * np.linalg.norm(d1, axis=1))))
+    cosine = np.median((d0 * d1).sum(axis=1) / (np.linalg.norm(d0, axis=1) * np.linalg.norm(d1, axis=1)))
+    return Neighbours(n, float(step), scene_size, float(cosine))
 
 
-def packets_pay(batch: RayBatch, scene_lo, scene_hi) -> bool:
+def packets_pay(batch: RayBatch, scene_lo, scene_hi, sampled: Neighbours | None = None) -> bool:
     """Whether a batch is coherent enough to trace in packets of consecutive rays: at least
     :data:`MIN_PACKET_RAYS` rays, half of the sampled neighbours or more starting at the same
     point (to within ``1e-9`` of the scene's size) and heading within :data:`_PACKET_ANGLE`
     radians of each other, as a pinhole camera's rays through neighbouring pixels do.
     Shadow rays from neighbouring hits to one light start apart, on the surface, where the
     bounds of eight of them (:mod:`.structures.bvh.packet_slab`) cull little: the full dragon's
-    ran at 0.3 of their single-ray speed in such packets; :func:`lane_packets_pay` takes them."""
-    n = len(batch.origins)
-    if n < MIN_PACKET_RAYS:
-        return False
-    sample = _neighbour_sample(n)
-    if _median_origin_step(batch, sample) > 1e-9 * float(np.max(scene_hi - scene_lo)):
-        return False
-    return _median_neighbour_cosine(batch, sample) >= np.cos(_PACKET_ANGLE)
+    ran at 0.3 of their single-ray speed in such packets; :func:`lane_packets_pay` takes them.
+    ``sampled``: the batch's :func:`sample_neighbours`, when known."""
+    sampled = sampled or sample_neighbours(batch, scene_lo, scene_hi)
+    return sampled.rays >= MIN_PACKET_RAYS and sampled.start_together(1e-9) and sampled.head_alike(_PACKET_ANGLE)
 
 
-def lane_packets_pay(batch: RayBatch, scene_lo, scene_hi) -> bool:
+def lane_packets_pay(batch: RayBatch, scene_lo, scene_hi, sampled: Neighbours | None = None) -> bool:
     """Whether a batch is coherent enough to trace in packets of consecutive rays tested lane by
     lane: at least :data:`MIN_PACKET_RAYS` rays, half of the sampled neighbours or more starting
-    within ``1/64`` of the scene's size of each other and heading within :data:`_LANE_PACKET_ANGLE`
+    within ``1/64`` of the scene's size of each other and heading within :data:`_ALIKE_ANGLE`
     radians, as shadow rays from neighbouring hits to one light do."""
-    n = len(batch.origins)
-    if n < MIN_PACKET_RAYS:
-        return False
-    sample = _neighbour_sample(n)
-    if _median_origin_step(batch, sample) > _NEARBY * float(np.max(scene_hi - scene_lo)):
-        return False
-    return _median_neighbour_cosine(batch, sample) >= np.cos(_LANE_PACKET_ANGLE)
+    sampled = sampled or sample_neighbours(batch, scene_lo, scene_hi)
+    return sampled.rays >= MIN_PACKET_RAYS and sampled.start_together(_NEARBY) and sampled.head_alike(_ALIKE_ANGLE)
 
 
-def interleaving_pays(batch: RayBatch, scene_lo, scene_hi, structure_bytes: int) -> bool:
+def interleaving_pays(batch: RayBatch, scene_lo, scene_hi, structure_bytes: int,
+                      sampled: Neighbours | None = None) -> bool:
     """Whether the eight-wide BVH walk should keep several rays in flight per thread
     (:mod:`.structures.bvh.traverse_interleaved`): a structure of more than four times a
     core's second-level cache, and a batch whose neighbouring rays start apart (more than
     ``1/64`` of the scene's size, for half of them or more) or head apart (by more than
-    0.1 radian), so that they do not share the nodes they wait for. Camera rays and shadow
-    rays from their hits to one light keep the walk of one ray at a time."""
+    :data:`_ALIKE_ANGLE` radians), so that they do not share the nodes they wait for. Camera
+    rays and shadow rays from their hits to one light keep the walk of one ray at a time."""
     if structure_bytes <= _INTERLEAVE_CACHES * second_level_cache_bytes() or len(batch.origins) < 2:
         return False
-    sample = _neighbour_sample(len(batch.origins))
-    if _median_origin_step(batch, sample) > _NEARBY * float(np.max(scene_hi - scene_lo)):
-        return True
-    return _median_neighbour_cosine(batch, sample) < np.cos(_SPREAD_ANGLE)
+    sampled = sampled or sample_neighbours(batch, scene_lo, scene_hi)
+    return not (sampled.start_together(_NEARBY) and sampled.head_alike(_ALIKE_ANGLE))
 
 
 def coherent_batch(batch: RayBatch, scene_lo: np.ndarray, scene_hi: np.ndarray) -> RayBatch:
@@ -191,10 +203,9 @@ def coherent_batch(batch: RayBatch, scene_lo: np.ndarray, scene_hi: np.ndarray) 
     of each other (half of them or more), as camera rays and the shadow rays from
     their hits do."""
     n = len(batch.origins)
-    sample = _neighbour_sample(n)
-    if _median_origin_step(batch, sample) <= _NEARBY * float(np.max(scene_hi - scene_lo)):
+    if sample_neighbours(batch, scene_lo, scene_hi).start_together(_NEARBY):
         return batch
-    origins = batch.origins[sample]
+    origins = batch.origins[np.arange(0, n - 1, max(1, n // _SAMPLE))]
     lo, extent = origins.min(axis=0), np.ptp(origins, axis=0)
     scale = (1 << _BITS_PER_AXIS) / np.where(extent > 0.0, extent, 1.0)
     sorted_batch = RayBatch(np.empty_like(batch.origins), np.empty_like(batch.directions),

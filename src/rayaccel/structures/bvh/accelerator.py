@@ -11,7 +11,7 @@ from ..._jit import thread_count, thread_rows
 from ..._validate import check_number
 from ...geometry.gather import layout_nbytes, layout_rows
 from ...geometry.kdop import KDOP_NORMALS, kdop_surface_areas
-from ...ray_order import interleaving_pays, lane_packets_pay, packets_pay
+from ...ray_order import interleaving_pays, lane_packets_pay, packets_pay, sample_neighbours
 from ...stats import surface_area_stats
 from ..actions import COUNT, NEAREST
 from ..base import Accelerator, walk_rays
@@ -234,17 +234,19 @@ class BoundingVolumeHierarchy(Accelerator):
                       *batch, any_hit, stack_node, stack_t, action, work)
             return
         tree = (self.wide, self.wide.view(np.int32), self.prim_order, self.scene.kind, self.geometry)
+        sampled = sample_neighbours(batch, *self.scene_box)
         walk = None
         if work.shape[0] == 0 and self.options.get("packets", True):
-            if packets_pay(batch, *self.scene_box):
+            if packets_pay(batch, *self.scene_box, sampled):
                 walk = _PACKET_WALKS.get(action.mode, wide_packet_crossings_kernel)
-            elif lane_packets_pay(batch, *self.scene_box):
+            elif lane_packets_pay(batch, *self.scene_box, sampled):
                 walk = _LANE_PACKET_WALKS.get(action.mode, lane_packet_crossings_kernel)
         if walk is not None:
             walk_rays(walk, len(batch.origins), *tree, *batch, any_hit, *self._wide_stacks(rows),
                       thread_rows((rows, WIDTH)), thread_rows((rows, LANE_ROWS * PACKET)),
                       thread_rows((rows, BOUND_VALUES)), thread_rows((rows, PACKET), np.int64), action)
-        elif self.options.get("interleave", True) and interleaving_pays(batch, *self.scene_box, self.nbytes):
+        elif self.options.get("interleave", True) and interleaving_pays(batch, *self.scene_box, self.nbytes,
+                                                                         sampled):
             walk = _INTERLEAVED_WALKS.get(action.mode, interleaved_crossings_kernel)
             walk_rays(walk, len(batch.origins), self.root_record, *tree, *batch, any_hit,
                       *self._wide_stacks(rows * SLOTS), thread_rows((rows, WIDTH)), SLOTS,
