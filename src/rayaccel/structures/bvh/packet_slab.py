@@ -33,7 +33,7 @@ from numba import types
 from numba.extending import intrinsic
 
 from .wide import WIDTH
-from .wide_slab import entered_children, tighten_lanes
+from .wide_slab import entered_children, tighten_lanes, tighten_to_slab
 
 __all__ = ["PACKET", "PACKET_ROWS", "BOUND_T_MIN", "BOUND_BEST", "BOUND_VALUES", "enter_children_interval",
            "enter_child_lanes", "enter_children_by_lane", "load_packet"]
@@ -134,9 +134,8 @@ def enter_child_lanes(typingctx, records, node, child, state, lanes):
             lo, hi = corner(axis), corner(axis + 3)
             origin, inverse = rows[axis], rows[axis + 3]
             positive = builder.fcmp_ordered(">=", inverse, zero)
-            near = builder.fmul(builder.fsub(builder.select(positive, lo, hi), origin), inverse)
-            far = builder.fmul(builder.fsub(builder.select(positive, hi, lo), origin), inverse)
-            enter, exit_ = tighten_lanes(builder, near, far, enter, exit_)
+            enter, exit_ = tighten_to_slab(builder, builder.select(positive, lo, hi), builder.select(positive, hi, lo),
+                                           origin, inverse, enter, exit_)
         entered = builder.zext(builder.bitcast(builder.fcmp_ordered("<=", enter, exit_), ir.IntType(PACKET)),
                                ir.IntType(64))
         return builder.and_(entered, context.cast(builder, lane_bits, sig.args[4], types.int64))
@@ -183,10 +182,8 @@ def enter_children_by_lane(typingctx, records, node, state, lanes, entry):
                 positive = builder.fcmp_ordered(">=", inverse, ir.Constant(ir.DoubleType(), 0.0))
                 near_box = builder.select(positive, boxes[axis], boxes[axis + 3])
                 far_box = builder.select(positive, boxes[axis + 3], boxes[axis])
-                o, inv = _splat(builder, origin, doubles), _splat(builder, inverse, doubles)
-                near = builder.fmul(builder.fsub(near_box, o), inv)
-                far = builder.fmul(builder.fsub(far_box, o), inv)
-                enter, exit_ = tighten_lanes(builder, near, far, enter, exit_)
+                enter, exit_ = tighten_to_slab(builder, near_box, far_box, _splat(builder, origin, doubles),
+                                               _splat(builder, inverse, doubles), enter, exit_)
             in_lanes = builder.trunc(builder.lshr(active, int64(lane)), ir.IntType(1))
             entered = builder.and_(builder.fcmp_ordered("<=", enter, exit_),
                                    _splat(builder, in_lanes, ir.VectorType(ir.IntType(1), WIDTH)))

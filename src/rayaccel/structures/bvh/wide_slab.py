@@ -32,7 +32,7 @@ from numba.extending import intrinsic
 
 from .wide import WIDTH
 
-__all__ = ["enter_children", "highest_bit", "tighten_lanes", "entered_children"]
+__all__ = ["enter_children", "highest_bit", "tighten_lanes", "tighten_to_slab", "entered_children"]
 
 
 @intrinsic
@@ -73,9 +73,7 @@ def enter_children(typingctx, records, node, near_x, near_y, near_z, origin, inv
             inv = splat(builder.extract_value(inv_value, axis))
             near_block = context.cast(builder, nears[axis], sig.args[2 + axis], types.intp)
             far_block = builder.sub(ir.Constant(intp, 2 * axis + 3), near_block)
-            near = builder.fmul(builder.fsub(component(near_block), o), inv)
-            far = builder.fmul(builder.fsub(component(far_block), o), inv)
-            enter, exit_ = tighten_lanes(builder, near, far, enter, exit_)
+            enter, exit_ = tighten_to_slab(builder, component(near_block), component(far_block), o, inv, enter, exit_)
         return entered_children(context, builder, sig.args[9], entry_array, enter, exit_)
 
     return signature, codegen
@@ -87,6 +85,14 @@ def tighten_lanes(builder, near, far, enter, exit_):
     enter = builder.select(builder.fcmp_ordered(">", near, enter), near, enter)
     exit_ = builder.select(builder.fcmp_ordered("<", far, exit_), far, exit_)
     return enter, exit_
+
+
+def tighten_to_slab(builder, near_face, far_face, origin, inverse, enter, exit_):
+    """The IR of one slab of the slab test on vectors: the distances ``(face - origin) * inverse``
+    to the near and far faces, each lane's interval narrowed to them (:func:`tighten_lanes`)."""
+    near = builder.fmul(builder.fsub(near_face, origin), inverse)
+    far = builder.fmul(builder.fsub(far_face, origin), inverse)
+    return tighten_lanes(builder, near, far, enter, exit_)
 
 
 def entered_children(context, builder, entry_type, entry_array, enter, exit_):
