@@ -31,7 +31,7 @@ import platform
 import time
 
 import numpy as np
-from _common import ensure_competitors, incoherent_rays, primary_rays
+from _common import SETTLE_SECONDS, ensure_competitors, incoherent_rays, primary_rays
 
 import rayaccel as ra
 from rayaccel.experiments.queries import open3d_scene
@@ -66,6 +66,7 @@ def main() -> None:
     answers = {}
     for round_ in range(args.rounds + 1):
         for who, name, query, run in calls:
+            time.sleep(SETTLE_SECONDS)
             start = time.perf_counter()
             answer = run()
             elapsed = time.perf_counter() - start

@@ -34,9 +34,10 @@ Open3D tensors, Dr.Jit arrays) before timing; every timed call returns NumPy arr
 Every figure is the median of ``ROUNDS`` rounds in which all subjects take turns at
 every query, so that all of them meet the same phases of a noisy machine: read the
 ratios (to the best peer of each column, and to Embree on all cores), not the
-absolute figures. Each subject's answers are compared with the first rayaccel
-method's (same primitive for closest hit, same verdict for any hit; the peers trace
-in float32).
+absolute figures. Before each timed call the benchmark pauses (``_common.SETTLE_SECONDS``),
+so that no peer's thread pool still spins while the next subject is timed. Each subject's
+answers are compared with the first rayaccel method's (same primitive for closest hit,
+same verdict for any hit; the peers trace in float32).
 
     python benchmarks/bench_structures.py [--scenes dragon forest-small-chair] [--methods bvh-binned kdtree]
                                           [--side 1024] [--out benchmarks/results]
@@ -61,6 +62,7 @@ from rich.table import Table
 sys.path.insert(0, str(Path(__file__).parent))
 from _common import (  # noqa: E402
     ROOT,
+    SETTLE_SECONDS,
     ensure_competitors,
     incoherent_rays,
     light_position,
@@ -177,6 +179,7 @@ def measure(subjects: list[Subject], rays: dict[str, RaySet], scene_name: str,
         phase = "warm-up" if round_ == 0 else f"round {round_}/{ROUNDS}"
         for i, column, call in calls:
             progress.update(task, description=f"{scene_name} {phase}: {subjects[i].label}, {column}")
+            time.sleep(SETTLE_SECONDS)
             start = time.perf_counter()
             answer = call()
             elapsed = time.perf_counter() - start
