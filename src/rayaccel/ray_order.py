@@ -144,6 +144,26 @@ class Neighbours(NamedTuple):
         return bool(self.cosine >= np.cos(angle))
 
 
+@kernel
+def _neighbour_pairs(origins, directions, stride, steps, cosines):
+    """For the rays ``k * stride`` and their successors: the largest coordinate difference of
+    their origins into ``steps[k]`` and the cosine of the angle between their directions into
+    ``cosines[k]``."""
+    for k in range(steps.shape[0]):
+        i = k * stride
+        step = 0.0
+        dot = 0.0
+        square_0 = 0.0
+        square_1 = 0.0
+        for axis in range(3):
+            step = max(step, abs(origins[i + 1, axis] - origins[i, axis]))
+            dot += directions[i, axis] * directions[i + 1, axis]
+            square_0 += directions[i, axis] ** 2
+            square_1 += directions[i + 1, axis] ** 2
+        steps[k] = step
+        cosines[k] = dot / np.sqrt(square_0 * square_1)
+
+
 def sample_neighbours(batch: RayBatch, scene_lo, scene_hi) -> Neighbours:
     """The :class:`Neighbours` of ``batch`` in a scene whose box is ``scene_lo``..``scene_hi``,
     from at most :data:`_SAMPLE` pairs of consecutive rays; a batch of fewer than two rays
@@ -153,11 +173,11 @@ def sample_neighbours(batch: RayBatch, scene_lo, scene_hi) -> Neighbours:
     scene_size = float(np.max(scene_hi - scene_lo))
     if n < 2:
         return Neighbours(n, 0.0, scene_size, 1.0)
-    sample = np.arange(0, n - 1, max(1, n // _SAMPLE))
-    step = np.median(np.abs(batch.origins[sample + 1] - batch.origins[sample]).max(axis=1))
-    d0, d1 = batch.directions[sample], batch.directions[sample + 1]
-    cosine = np.median((d0 * d1).sum(axis=1) / (np.linalg.norm(d0, axis=1) * np.linalg.norm(d1, axis=1)))
-    return Neighbours(n, float(step), scene_size, float(cosine))
+    stride = max(1, n // _SAMPLE)
+    pairs = len(range(0, n - 1, stride))
+    steps, cosines = np.empty(pairs), np.empty(pairs)
+    _neighbour_pairs(batch.origins, batch.directions, stride, steps, cosines)
+    return Neighbours(n, float(np.median(steps)), scene_size, float(np.median(cosines)))
 
 
 def packets_pay(batch: RayBatch, scene_lo, scene_hi, sampled: Neighbours | None = None) -> bool:
