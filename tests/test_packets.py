@@ -17,6 +17,7 @@ import rayaccel as ra
 from rayaccel.ray_order import MIN_PACKET_RAYS, lane_packets_pay, packets_pay
 from rayaccel.rays import prepare_rays
 from rayaccel.structures.bvh import accelerator
+from rayaccel.structures.bvh.traverse_packet import SPAN
 
 
 @pytest.fixture(params=["shared origin", "by lane"])
@@ -44,6 +45,39 @@ def test_camera_packets_of_every_fill_match_brute_force(small_dragon, extra):
     brute, packets = ra.build(small_dragon, "none"), ra.build(small_dragon, "bvh-binned")
     assert_same_hits(brute.intersect(origins, directions), packets.intersect(origins, directions))
     np.testing.assert_array_equal(packets.occluded(origins, directions), brute.occluded(origins, directions))
+
+
+def spans_missing_the_box(origins, directions, lo, hi):
+    """How many whole runs of :data:`SPAN` consecutive rays each miss the box ``[lo, hi]``."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        near, far = (lo - origins) / directions, (hi - origins) / directions
+    enter = np.nanmax(np.minimum(near, far), axis=1)
+    leave = np.nanmin(np.maximum(near, far), axis=1)
+    misses = (enter > leave) | (leave < 0.0)
+    whole = len(misses) // SPAN * SPAN
+    return int(misses[:whole].reshape(-1, SPAN).all(axis=1).sum())
+
+
+@pytest.mark.parametrize("limits", ["shared", "per ray"])
+def test_camera_spans_that_miss_the_scene_match_brute_force(small_dragon, limits):
+    """A wide camera whose image the model fills only in part: whole runs of rays miss the root's
+    boxes and are answered as misses without being loaded as packets; the runs around the model
+    and the partial run at the end walk as before. Per-ray limits bound a run by their extremes."""
+    b = small_dragon.bounds()
+    origins, directions = ra.Camera.framing(b.scene_lo, b.scene_hi, fov=70.0).rays(101, 101)
+    assert spans_missing_the_box(origins, directions, b.scene_lo, b.scene_hi) >= 10
+    t_min, t_max = 0.0, np.inf
+    if limits == "per ray":
+        rng = np.random.default_rng(3)
+        t_min = rng.uniform(0.0, 0.5, len(origins))
+        t_max = np.where(rng.random(len(origins)) < 0.5, np.inf, rng.uniform(0.6, 1.2, len(origins)))
+    brute, packets = ra.build(small_dragon, "none"), ra.build(small_dragon, "bvh-binned")
+    assert packets_pay(prepare_rays(origins, directions), b.scene_lo, b.scene_hi)
+    assert_same_hits(brute.intersect(origins, directions, t_min, t_max),
+                     packets.intersect(origins, directions, t_min, t_max))
+    np.testing.assert_array_equal(packets.occluded(origins, directions, t_min, t_max),
+                                  brute.occluded(origins, directions, t_min, t_max))
+    assert_counts_and_lists_match(brute, packets, origins, directions)
 
 
 def shadow_rays(scene, side):

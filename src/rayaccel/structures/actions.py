@@ -60,6 +60,7 @@ import numpy as np
 
 from .._jit import inline_kernel
 from ..geometry.primitive import cross_prim, intersect_prim
+from ..rays import result_row
 
 __all__ = ["NEAREST", "COUNT", "LIST", "WINDING", "Action", "nearest_hit", "hit_count", "hit_list", "hit_slots",
            "signed_crossings", "is_closer", "store_hit", "visit_prim", "visit_prim_in_mode", "finish_ray",
@@ -249,6 +250,23 @@ def finish_ray_in_mode(mode, action, row, best_t, best_prim, best_u, best_v):
             action.t[row] = t
             action.u[row] = u
             action.v[row] = v
+
+
+@inline_kernel
+def finish_misses_in_mode(mode, action, hit_slot, first, end):
+    """:func:`finish_ray_in_mode` for the rays ``first`` to ``end - 1`` of a batch, each of which
+    missed."""
+    if mode == NEAREST:
+        if action.t.shape[0] > 0:
+            for i in range(first, end):
+                row = result_row(hit_slot, i)
+                action.prim[row] = -1
+                action.t[row] = np.inf
+                action.u[row] = np.nan
+                action.v[row] = np.nan
+        else:
+            for i in range(first, end):
+                action.prim[result_row(hit_slot, i)] = -1
 
 
 @inline_kernel

@@ -23,20 +23,22 @@ arithmetic over its rays):
 
 All keep the single-ray test's NaN-safe bounds (an origin on a slab plane with a zero
 direction component gives ``0 * inf``, which never tightens the interval).
-:func:`load_packet` moves eight rays from the caller's rows into the packet's lanes.
+:func:`load_packet` moves eight rays from the caller's rows into the packet's lanes;
+:func:`bound_span` bounds a longer run of rays for :func:`enter_children_interval`.
 """
 
 from __future__ import annotations
 
 from llvmlite import ir
 from numba import types
+from numba.core import cgutils
 from numba.extending import intrinsic
 
 from .wide import WIDTH
 from .wide_slab import entered_children, tighten_lanes, tighten_to_slab
 
 __all__ = ["PACKET", "PACKET_ROWS", "BOUND_T_MIN", "BOUND_BEST", "BOUND_VALUES", "enter_children_interval",
-           "enter_child_lanes", "enter_children_by_lane", "load_packet"]
+           "enter_child_lanes", "enter_children_by_lane", "load_packet", "bound_span"]
 
 PACKET = 8
 """Rays per packet, one per vector lane."""
@@ -230,14 +232,6 @@ def load_packet(typingctx, origins, directions, first, state, bounds):
                                                                   [3 * lane + axis for lane in range(PACKET)]))
                     for axis in range(3)]
 
-        def reduce(vector, compare):
-            for width in (4, 2, 1):
-                mask = ir.Constant(ir.VectorType(ir.IntType(32), PACKET),
-                                   [(lane + width) % PACKET for lane in range(PACKET)])
-                moved = builder.shuffle_vector(vector, vector, mask)
-                vector = builder.select(builder.fcmp_ordered(compare, moved, vector), moved, vector)
-            return builder.extract_element(vector, ir.IntType(32)(0))
-
         origin = lanes_by_axis(sig.args[0], origin_array)
         direction = lanes_by_axis(sig.args[1], direction_array)
         ones = ir.Constant(doubles, [1.0] * PACKET)
@@ -254,13 +248,102 @@ def load_packet(typingctx, origins, directions, first, state, bounds):
             positive = builder.icmp_unsigned("==", signs, ir.IntType(PACKET)(-1))
             negative = builder.icmp_unsigned("==", signs, ir.IntType(PACKET)(0))
             mixed = builder.or_(mixed, builder.not_(builder.or_(positive, negative)))
-            o_low, o_high = reduce(origin[axis], "<"), reduce(origin[axis], ">")
+            o_low, o_high = _reduce_lanes(builder, origin[axis], "<"), _reduce_lanes(builder, origin[axis], ">")
             values = (builder.select(positive, ir.Constant(double, float(axis)), ir.Constant(double, float(axis + 3))),
                       builder.select(positive, o_high, o_low), builder.select(positive, o_low, o_high),
-                      reduce(inverse[axis], "<"), reduce(inverse[axis], ">"))
+                      _reduce_lanes(builder, inverse[axis], "<"), _reduce_lanes(builder, inverse[axis], ">"))
             for k, value in enumerate(values):
                 builder.store(value, builder.gep(bounds_data, [ir.Constant(intp, 5 * axis + k)]))
         return builder.zext(mixed, ir.IntType(64))
 
     return signature, codegen
 
+
+def _lane_axes(part):
+    """The axis each lane of the ``part``-th vector of eight float64 read from a run of (n, 3)
+    rows holds (rows start on a multiple of eight)."""
+    return [(PACKET * part + lane) % 3 for lane in range(PACKET)]
+
+
+def _reduce_lanes(builder, vector, compare):
+    """The smallest (``compare`` "<") or largest (">") lane of ``vector``."""
+    for width in (4, 2, 1):
+        mask = ir.Constant(ir.VectorType(ir.IntType(32), PACKET), [(lane + width) % PACKET for lane in range(PACKET)])
+        moved = builder.shuffle_vector(vector, vector, mask)
+        vector = builder.select(builder.fcmp_ordered(compare, moved, vector), moved, vector)
+    return builder.extract_element(vector, ir.IntType(32)(0))
+
+
+@intrinsic
+def bound_span(typingctx, origins, directions, first, packets, bounds):
+    """The interval bounds of the ``PACKET * packets`` rays from row ``first`` of ``origins`` and
+    ``directions`` ((n, 3) C-contiguous float64), for :func:`enter_children_interval`: returns
+    0 after writing rows 0-14 of :data:`BOUND_VALUES` into ``bounds``, or 1, leaving ``bounds``
+    unfinished, when along some axis the directions are not all of one strict sign. Each
+    group of eight rows is read as three vectors of eight coordinates and folded into running
+    minima and maxima lane by lane, with no shuffle; the lanes of each axis are reduced once at
+    the end. The inverse directions are bounded by the inverses of the extreme directions: a
+    correctly rounded division is monotone, so each ray's own inverse lies between them."""
+    if origins.layout != "C" or directions.layout != "C":
+        return None
+    signature = types.int64(origins, directions, first, packets, bounds)
+
+    def codegen(context, builder, sig, args):
+        origin_array, direction_array, first_row, packet_count, bounds_array = args
+        intp = context.get_value_type(types.intp)
+        double = ir.DoubleType()
+        doubles = ir.VectorType(double, PACKET)
+        row = context.cast(builder, first_row, sig.args[2], types.intp)
+        count = context.cast(builder, packet_count, sig.args[3], types.intp)
+        starts = [builder.gep(context.make_array(array_type)(context, builder, array).data,
+                              [builder.mul(row, ir.Constant(intp, 3))])
+                  for array_type, array in ((sig.args[0], origin_array), (sig.args[1], direction_array))]
+        highest = ir.Constant(doubles, [float("inf")] * PACKET)
+        lowest = ir.Constant(doubles, [float("-inf")] * PACKET)
+        running = {}
+        for array in range(2):
+            for part in range(3):
+                for compare, start in (("<", highest), (">", lowest)):
+                    slot = cgutils.alloca_once(builder, doubles)
+                    builder.store(start, slot)
+                    running[array, part, compare] = slot
+        with cgutils.for_range(builder, count) as loop:
+            offset = builder.mul(loop.index, ir.Constant(intp, 3 * PACKET))
+            for array in range(2):
+                block = builder.gep(starts[array], [offset])
+                for part in range(3):
+                    pointer = builder.bitcast(builder.gep(block, [ir.Constant(intp, PACKET * part)]),
+                                              doubles.as_pointer())
+                    values = builder.load(pointer, align=8)
+                    for compare in ("<", ">"):
+                        slot = running[array, part, compare]
+                        kept = builder.load(slot)
+                        builder.store(builder.select(builder.fcmp_ordered(compare, values, kept), values, kept), slot)
+
+        def extreme(array, axis, compare):
+            fill = highest if compare == "<" else lowest
+            combined = fill
+            for part in range(3):
+                lanes = ir.Constant(ir.VectorType(ir.IntType(1), PACKET), [a == axis for a in _lane_axes(part)])
+                vector = builder.select(lanes, builder.load(running[array, part, compare]), fill)
+                combined = builder.select(builder.fcmp_ordered(compare, vector, combined), vector, combined)
+            return _reduce_lanes(builder, combined, compare)
+
+        bounds_data = context.make_array(sig.args[4])(context, builder, bounds_array).data
+        zero = ir.Constant(double, 0.0)
+        one = ir.Constant(double, 1.0)
+        unsigned = ir.IntType(1)(0)
+        for axis in range(3):
+            o_low, o_high = extreme(0, axis, "<"), extreme(0, axis, ">")
+            d_low, d_high = extreme(1, axis, "<"), extreme(1, axis, ">")
+            positive = builder.fcmp_ordered(">", d_low, zero)
+            signed = builder.or_(positive, builder.fcmp_ordered("<", d_high, zero))
+            unsigned = builder.or_(unsigned, builder.not_(signed))
+            values = (builder.select(positive, ir.Constant(double, float(axis)), ir.Constant(double, float(axis + 3))),
+                      builder.select(positive, o_high, o_low), builder.select(positive, o_low, o_high),
+                      builder.fdiv(one, d_high), builder.fdiv(one, d_low))
+            for k, value in enumerate(values):
+                builder.store(value, builder.gep(bounds_data, [ir.Constant(intp, 5 * axis + k)]))
+        return builder.zext(unsigned, ir.IntType(64))
+
+    return signature, codegen

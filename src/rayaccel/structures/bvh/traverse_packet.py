@@ -19,6 +19,16 @@ own row.
 A packet whose rays point to both sides along some axis has no single near face there:
 its rays are walked as packets of one.
 
+Before its rays are loaded as packets, a run of :data:`SPAN` rays is bounded as a whole
+(:func:`.packet_slab.bound_span`) and tested against the root's child boxes; a run that
+misses them all is answered as misses at once (the "early miss exit" of Wald, Boulos &
+Shirley 2007, there for a packet's frustum). Most of a camera's rays may miss the scene: on
+the forest 84 % of 1024^2 rays miss its box; the 730 image rows that miss it whole (747,520
+rays) took 5.4 ms of packet walk for an any-hit query on one thread, 2.1 ms with the test
+(3.5 against 6.8 ms for the closest hit). Forest camera rays on two threads,
+medians of 9 in alternating processes: any hit 11.6 -> 9.6 ms, closest hit 22.3 -> 20.5 ms
+(the full dragon 34-36 -> 34-35 ms, unchanged). Runs of 16 to 128 rays measured alike.
+
 Rays that start apart but head alike, such as shadow rays from neighbouring hits to one
 light, would make the packet's interval bounds loose (measured on the full dragon's: 0.3
 of the single walk's speed). Their packets test each ray against the eight child boxes
@@ -44,11 +54,12 @@ import numpy as np
 from ..._jit import chunk_kernel, inline_kernel, unsigned
 from ...geometry.primitive import ray_setup
 from ...rays import ray_limit, result_row
-from ..actions import NEAREST, finish_ray_in_mode
+from ..actions import NEAREST, finish_misses_in_mode, finish_ray_in_mode
 from .packet_slab import (
     BOUND_BEST,
     BOUND_T_MIN,
     PACKET,
+    bound_span,
     enter_child_lanes,
     enter_children_by_lane,
     enter_children_interval,
@@ -61,6 +72,8 @@ from .wide_slab import highest_bit
 __all__ = ["LANE_ROWS", "wide_packet_kernel", "wide_packet_crossings_kernel", "lane_packet_kernel",
            "lane_packet_crossings_kernel"]
 
+SPAN = 8 * PACKET
+"""Rays whose common bounds an interval packet walk tests against the root before loading them as packets."""
 _LANES_SHIFT = 16
 _COUNT_MASK = (1 << _LANES_SHIFT) - 1
 _T_MIN = 6 * PACKET
@@ -118,6 +131,21 @@ def _bound_group(state, bounds, group_first, group):
 
 
 @inline_kernel
+def _root_culls_span(records, origins, directions, t_min, t_max, span_first, bounds, child_entry):
+    """Whether the :data:`SPAN` rays from ``span_first``, whose directions have one strict sign
+    along each axis, miss every child box of the root, by their interval bounds."""
+    if bound_span(origins, directions, span_first, SPAN // PACKET, bounds) != 0:
+        return False
+    t_low, t_high = ray_limit(t_min, span_first), ray_limit(t_max, span_first)
+    for i in range(span_first + 1, span_first + SPAN if t_min.shape[0] > 1 or t_max.shape[0] > 1 else 0):
+        t_low = min(t_low, ray_limit(t_min, i))
+        t_high = max(t_high, ray_limit(t_max, i))
+    bounds[BOUND_T_MIN] = t_low
+    bounds[BOUND_BEST] = t_high
+    return enter_children_interval(records, 0, bounds, child_entry) == 0
+
+
+@inline_kernel
 def _packet_walk(ray_first, ray_end, tid, records, links, prim_order, kind, geom, origins, directions, t_min, t_max,
                  hit_slot, any_hit, stack_link, stack_count, stack_t, entry, lanes_state, bounds_state,
                  lanes_prim, by_lane, mode, action):
@@ -131,126 +159,132 @@ def _packet_walk(ray_first, ray_end, tid, records, links, prim_order, kind, geom
     bounds = bounds_state[tid]
     best_prim = lanes_prim[tid]
     nearest_first = not any_hit and mode == NEAREST
-    for packet_first in range(ray_first, ray_end, PACKET):
-        n_lanes = min(PACKET, ray_end - packet_first)
-        loaded = n_lanes == PACKET
-        if loaded:
-            mixed = load_packet(origins, directions, packet_first, state, bounds) != 0
-        else:
-            mixed = False
+    for span_first in range(ray_first, ray_end, SPAN):
+        span_end = min(span_first + SPAN, ray_end)
+        if not by_lane and span_end - span_first == SPAN and \
+                _root_culls_span(records, origins, directions, t_min, t_max, span_first, bounds, child_entry):
+            finish_misses_in_mode(mode, action, hit_slot, span_first, span_end)
+            continue
+        for packet_first in range(span_first, span_end, PACKET):
+            n_lanes = min(PACKET, ray_end - packet_first)
+            loaded = n_lanes == PACKET
+            if loaded:
+                mixed = load_packet(origins, directions, packet_first, state, bounds) != 0
+            else:
+                mixed = False
+                for r in range(PACKET):
+                    i = packet_first + min(r, n_lanes - 1)
+                    for axis in range(3):
+                        inverse = 1.0 / directions[i, axis]
+                        state[axis * PACKET + r] = origins[i, axis]
+                        state[(axis + 3) * PACKET + r] = inverse
+                        mixed |= (inverse >= 0.0) != (state[(axis + 3) * PACKET] >= 0.0)
             for r in range(PACKET):
                 i = packet_first + min(r, n_lanes - 1)
-                for axis in range(3):
-                    inverse = 1.0 / directions[i, axis]
-                    state[axis * PACKET + r] = origins[i, axis]
-                    state[(axis + 3) * PACKET + r] = inverse
-                    mixed |= (inverse >= 0.0) != (state[(axis + 3) * PACKET] >= 0.0)
-        for r in range(PACKET):
-            i = packet_first + min(r, n_lanes - 1)
-            state[_T_MIN + r] = ray_limit(t_min, i)
-            state[_BEST + r] = ray_limit(t_max, i)
-            best_prim[r] = -1
-            state[_U + r] = 0.0
-            state[_V + r] = 0.0
-        group = 1 if mixed and not by_lane else n_lanes
-        for group_first in range(0, n_lanes, group):
-            active = ((1 << group) - 1) << group_first
-            if not (by_lane or (loaded and not mixed)):
-                _bound_group(state, bounds, group_first, group)
-            packet_t_min = np.inf
-            farthest_best = -np.inf
-            for r in range(group_first, group_first + group):
-                packet_t_min = min(packet_t_min, state[_T_MIN + r])
-                farthest_best = max(farthest_best, state[_BEST + r])
-            bounds[BOUND_T_MIN] = packet_t_min
-            bounds[BOUND_BEST] = farthest_best
-            done = 0
-            node = 0
-            lanes = active
-            sp = 0
-            while True:
-                if node >= 0:
-                    if by_lane:
-                        lane_children = enter_children_by_lane(records, node, state, lanes, child_entry)
-                        children = _any_lane(lane_children)
-                        lanes_by_child = _transpose_lanes(lane_children)
-                    else:
-                        children = enter_children_interval(records, node, bounds, child_entry)
-                        lanes_by_child = unsigned(0)
-                    base = sp
-                    descend = -1
-                    while children != 0:
-                        c = highest_bit(children)
-                        children ^= 1 << c
-                        link = child_link(links, node, c)
-                        count = child_count(links, node, c)
-                        child_lanes = lanes
+                state[_T_MIN + r] = ray_limit(t_min, i)
+                state[_BEST + r] = ray_limit(t_max, i)
+                best_prim[r] = -1
+                state[_U + r] = 0.0
+                state[_V + r] = 0.0
+            group = 1 if mixed and not by_lane else n_lanes
+            for group_first in range(0, n_lanes, group):
+                active = ((1 << group) - 1) << group_first
+                if not (by_lane or (loaded and not mixed)):
+                    _bound_group(state, bounds, group_first, group)
+                packet_t_min = np.inf
+                farthest_best = -np.inf
+                for r in range(group_first, group_first + group):
+                    packet_t_min = min(packet_t_min, state[_T_MIN + r])
+                    farthest_best = max(farthest_best, state[_BEST + r])
+                bounds[BOUND_T_MIN] = packet_t_min
+                bounds[BOUND_BEST] = farthest_best
+                done = 0
+                node = 0
+                lanes = active
+                sp = 0
+                while True:
+                    if node >= 0:
                         if by_lane:
-                            child_lanes = np.int64((lanes_by_child >> unsigned(8 * c)) & unsigned(0xFF))
+                            lane_children = enter_children_by_lane(records, node, state, lanes, child_entry)
+                            children = _any_lane(lane_children)
+                            lanes_by_child = _transpose_lanes(lane_children)
+                        else:
+                            children = enter_children_interval(records, node, bounds, child_entry)
+                            lanes_by_child = unsigned(0)
+                        base = sp
+                        descend = -1
+                        while children != 0:
+                            c = highest_bit(children)
+                            children ^= 1 << c
+                            link = child_link(links, node, c)
+                            count = child_count(links, node, c)
+                            child_lanes = lanes
+                            if by_lane:
+                                child_lanes = np.int64((lanes_by_child >> unsigned(8 * c)) & unsigned(0xFF))
+                            if count == 0:
+                                if children == 0 and sp == base:
+                                    descend = link
+                                    lanes = child_lanes
+                                    break
+                            elif not by_lane:
+                                child_lanes = enter_child_lanes(records, node, c, state, lanes)
+                                if child_lanes == 0:
+                                    continue
+                            sp = push_child(records, geom, stack_link, stack_count, stack_t, tid, base, sp,
+                                            child_entry[c], link, count, count | (child_lanes << _LANES_SHIFT),
+                                            nearest_first)
+                        if descend >= 0:
+                            node = descend
+                            continue
+                    node = -1
+                    while sp > 0:
+                        sp -= 1
+                        word = stack_count[tid, sp]
+                        lanes = (word >> _LANES_SHIFT) & ~done
+                        if lanes == 0 or stack_t[tid, sp] > bounds[BOUND_BEST]:
+                            continue
+                        count = word & _COUNT_MASK
                         if count == 0:
-                            if children == 0 and sp == base:
-                                descend = link
-                                lanes = child_lanes
-                                break
-                        elif not by_lane:
-                            child_lanes = enter_child_lanes(records, node, c, state, lanes)
-                            if child_lanes == 0:
-                                continue
-                        sp = push_child(records, geom, stack_link, stack_count, stack_t, tid, base, sp,
-                                        child_entry[c], link, count, count | (child_lanes << _LANES_SHIFT),
-                                        nearest_first)
-                    if descend >= 0:
-                        node = descend
-                        continue
-                node = -1
-                while sp > 0:
-                    sp -= 1
-                    word = stack_count[tid, sp]
-                    lanes = (word >> _LANES_SHIFT) & ~done
-                    if lanes == 0 or stack_t[tid, sp] > bounds[BOUND_BEST]:
-                        continue
-                    count = word & _COUNT_MASK
-                    if count == 0:
-                        node = stack_link[tid, sp]
+                            node = stack_link[tid, sp]
+                            break
+                        first = stack_link[tid, sp]
+                        improved = False
+                        remaining = lanes
+                        while remaining != 0:
+                            r = highest_bit(remaining)
+                            remaining ^= 1 << r
+                            i = packet_first + r
+                            ray = ray_setup(origins[i, 0], origins[i, 1], origins[i, 2],
+                                            directions[i, 0], directions[i, 1], directions[i, 2])
+                            best_t = state[_BEST + r]
+                            prim_r = best_prim[r]
+                            best_u = state[_U + r]
+                            best_v = state[_V + r]
+                            best_t, prim_r, best_u, best_v, _ = visit_leaf(mode, action, result_row(hit_slot, i), kind,
+                                                                           geom, prim_order, first, count, ray,
+                                                                           state[_T_MIN + r], best_t, prim_r, best_u,
+                                                                           best_v, any_hit)
+                            if any_hit and prim_r >= 0:
+                                done |= 1 << r
+                            if prim_r != best_prim[r] or best_t != state[_BEST + r]:
+                                improved = True
+                                state[_BEST + r] = best_t
+                                best_prim[r] = prim_r
+                                state[_U + r] = best_u
+                                state[_V + r] = best_v
+                        if any_hit and done == active:
+                            sp = 0
+                            break
+                        if improved and not any_hit:
+                            farthest_best = -np.inf
+                            for r in range(group_first, group_first + group):
+                                farthest_best = max(farthest_best, state[_BEST + r])
+                            bounds[BOUND_BEST] = farthest_best
+                    if node < 0:
                         break
-                    first = stack_link[tid, sp]
-                    improved = False
-                    remaining = lanes
-                    while remaining != 0:
-                        r = highest_bit(remaining)
-                        remaining ^= 1 << r
-                        i = packet_first + r
-                        ray = ray_setup(origins[i, 0], origins[i, 1], origins[i, 2],
-                                        directions[i, 0], directions[i, 1], directions[i, 2])
-                        best_t = state[_BEST + r]
-                        prim_r = best_prim[r]
-                        best_u = state[_U + r]
-                        best_v = state[_V + r]
-                        best_t, prim_r, best_u, best_v, _ = visit_leaf(mode, action, result_row(hit_slot, i), kind,
-                                                                       geom, prim_order, first, count, ray,
-                                                                       state[_T_MIN + r], best_t, prim_r, best_u,
-                                                                       best_v, any_hit)
-                        if any_hit and prim_r >= 0:
-                            done |= 1 << r
-                        if prim_r != best_prim[r] or best_t != state[_BEST + r]:
-                            improved = True
-                            state[_BEST + r] = best_t
-                            best_prim[r] = prim_r
-                            state[_U + r] = best_u
-                            state[_V + r] = best_v
-                    if any_hit and done == active:
-                        sp = 0
-                        break
-                    if improved and not any_hit:
-                        farthest_best = -np.inf
-                        for r in range(group_first, group_first + group):
-                            farthest_best = max(farthest_best, state[_BEST + r])
-                        bounds[BOUND_BEST] = farthest_best
-                if node < 0:
-                    break
-        for r in range(n_lanes):
-            finish_ray_in_mode(mode, action, result_row(hit_slot, packet_first + r), state[_BEST + r],
-                               best_prim[r], state[_U + r], state[_V + r])
+            for r in range(n_lanes):
+                finish_ray_in_mode(mode, action, result_row(hit_slot, packet_first + r), state[_BEST + r],
+                                   best_prim[r], state[_U + r], state[_V + r])
 
 
 @chunk_kernel
