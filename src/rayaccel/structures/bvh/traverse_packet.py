@@ -10,9 +10,15 @@ a box only where each ray would), so the traversal's chain of dependent loads an
 is paid once for eight rays. A leaf the packet enters is tested against each of its
 rays (:func:`.packet_slab.enter_child_lanes`), and only the rays that enter it test its
 primitives, with the single-ray walk's test (the same hits, to the bit). A closest-hit
-packet takes the entered children nearest first and skips an entry popped beyond the
-farthest best hit of its rays, which also bounds its node tests; an any-hit packet drops
-each ray that found a hit, and stops when none is left. Counting and listing walks take
+camera packet whose rays share the triangle test's axes tests each triangle of the leaf on
+all its rays at once (:func:`.packet_triangle.inside_edges_by_lane`, the rays' shear set up
+at the packet's first leaf) and finishes only the rays inside its edges with the single-ray
+test; forest camera rays on two threads, medians of 9 in alternating processes: closest hit
+22.3-23.3 -> 18.5-20.4 ms, the full dragon's 42.6-44.3 -> 40.2-42.6 ms. For any hit, where
+a ray leaves at its first hit, it measured the same on the forest and up to 4 % slower on the
+dragon, and is not used. A closest-hit packet takes the entered children nearest first and
+skips an entry popped beyond the farthest best hit of its rays, which also bounds its node
+tests; an any-hit packet drops each ray that found a hit, and stops when none is left. Counting and listing walks take
 the packets too (:func:`wide_packet_crossings_kernel`), each ray's crossings going to its
 own row.
 
@@ -52,9 +58,11 @@ from __future__ import annotations
 import numpy as np
 
 from ..._jit import chunk_kernel, inline_kernel, unsigned
+from ...geometry.gather import corner
+from ...geometry.kinds import TRIANGLE
 from ...geometry.primitive import ray_setup
 from ...rays import ray_limit, result_row
-from ..actions import NEAREST, finish_misses_in_mode, finish_ray_in_mode
+from ..actions import NEAREST, finish_misses_in_mode, finish_ray_in_mode, visit_prim_in_mode
 from .packet_slab import (
     BOUND_BEST,
     BOUND_T_MIN,
@@ -65,6 +73,7 @@ from .packet_slab import (
     enter_children_interval,
     load_packet,
 )
+from .packet_triangle import SHEAR_ROW, SHEAR_ROWS, inside_edges_by_lane
 from .traverse_wide import push_child, visit_leaf
 from .wide import child_count, child_link
 from .wide_slab import highest_bit
@@ -80,9 +89,11 @@ _T_MIN = 6 * PACKET
 _BEST = 7 * PACKET
 _U = 8 * PACKET
 _V = 9 * PACKET
-LANE_ROWS = 10
+_SX, _SY, _OKX, _OKY, _OKZ, _SZ = ((SHEAR_ROW + k) * PACKET for k in range(SHEAR_ROWS))
+LANE_ROWS = SHEAR_ROW + SHEAR_ROWS
 """Rows of :data:`PACKET` float64 a packet keeps per thread: the ray state
-:func:`.packet_slab.enter_child_lanes` reads, then its rays' best ``u`` and ``v``."""
+:func:`.packet_slab.enter_child_lanes` reads, its rays' best ``u`` and ``v``, then their
+triangle-test constants (:data:`.packet_triangle.SHEAR_ROW`)."""
 
 
 @inline_kernel
@@ -131,6 +142,30 @@ def _bound_group(state, bounds, group_first, group):
 
 
 @inline_kernel
+def _set_up_lanes(state, origins, directions, packet_first, n_lanes):
+    """Write each lane's triangle-test constants (:func:`rayaccel.geometry.primitive.ray_setup`:
+    shear, origin on the sheared axes) into ``state`` from row :data:`.packet_triangle.SHEAR_ROW`
+    on; returns whether the lanes share their axes, and lane 0's ``(kx, ky, kz)``."""
+    kx0, ky0, kz0 = 0, 0, 0
+    shared = True
+    for r in range(PACKET):
+        i = packet_first + min(r, n_lanes - 1)
+        _, _, _, _, _, _, kx, ky, kz, sx, sy, sz, okx, oky, okz = ray_setup(
+            origins[i, 0], origins[i, 1], origins[i, 2], directions[i, 0], directions[i, 1], directions[i, 2])
+        state[_SX + r] = sx
+        state[_SY + r] = sy
+        state[_SZ + r] = sz
+        state[_OKX + r] = okx
+        state[_OKY + r] = oky
+        state[_OKZ + r] = okz
+        if r == 0:
+            kx0, ky0, kz0 = kx, ky, kz
+        elif kx != kx0 or ky != ky0 or kz != kz0:
+            shared = False
+    return shared, kx0, ky0, kz0
+
+
+@inline_kernel
 def _root_culls_span(records, origins, directions, t_min, t_max, span_first, bounds, child_entry):
     """Whether the :data:`SPAN` rays from ``span_first``, whose directions have one strict sign
     along each axis, miss every child box of the root, by their interval bounds."""
@@ -159,6 +194,7 @@ def _packet_walk(ray_first, ray_end, tid, records, links, prim_order, kind, geom
     bounds = bounds_state[tid]
     best_prim = lanes_prim[tid]
     nearest_first = not any_hit and mode == NEAREST
+    lane_triangles = nearest_first and not by_lane and kind == TRIANGLE
     for span_first in range(ray_first, ray_end, SPAN):
         span_end = min(span_first + SPAN, ray_end)
         if not by_lane and span_end - span_first == SPAN and \
@@ -186,6 +222,8 @@ def _packet_walk(ray_first, ray_end, tid, records, links, prim_order, kind, geom
                 best_prim[r] = -1
                 state[_U + r] = 0.0
                 state[_V + r] = 0.0
+            lanes_set_up = False
+            shared_axes, kx, ky, kz = False, 0, 0, 0
             group = 1 if mixed and not by_lane else n_lanes
             for group_first in range(0, n_lanes, group):
                 active = ((1 << group) - 1) << group_first
@@ -249,7 +287,38 @@ def _packet_walk(ray_first, ray_end, tid, records, links, prim_order, kind, geom
                             break
                         first = stack_link[tid, sp]
                         improved = False
-                        remaining = lanes
+                        if lane_triangles and not lanes_set_up:
+                            shared_axes, kx, ky, kz = _set_up_lanes(state, origins, directions, packet_first, n_lanes)
+                            lanes_set_up = True
+                        by_triangle = lane_triangles and shared_axes
+                        remaining = 0 if by_triangle else lanes
+                        for k in range(first, first + (count if by_triangle else 0)):
+                            live = lanes & ~done
+                            if live == 0:
+                                break
+                            inside = inside_edges_by_lane(
+                                state, live, corner(geom, k, 0, kx), corner(geom, k, 0, ky), corner(geom, k, 0, kz),
+                                corner(geom, k, 1, kx), corner(geom, k, 1, ky), corner(geom, k, 1, kz),
+                                corner(geom, k, 2, kx), corner(geom, k, 2, ky), corner(geom, k, 2, kz))
+                            while inside != 0:
+                                r = highest_bit(inside)
+                                inside ^= 1 << r
+                                i = packet_first + r
+                                ray = (origins[i, 0], origins[i, 1], origins[i, 2], directions[i, 0], directions[i, 1],
+                                       directions[i, 2], kx, ky, kz, state[_SX + r], state[_SY + r], state[_SZ + r],
+                                       state[_OKX + r], state[_OKY + r], state[_OKZ + r])
+                                best_t, prim_r, best_u, best_v, stop = visit_prim_in_mode(
+                                    mode, action, result_row(hit_slot, i), kind, geom, k, prim_order[unsigned(k)], ray,
+                                    state[_T_MIN + r], state[_BEST + r], best_prim[r], state[_U + r], state[_V + r],
+                                    any_hit)
+                                if stop:
+                                    done |= 1 << r
+                                if prim_r != best_prim[r] or best_t != state[_BEST + r]:
+                                    improved = True
+                                    state[_BEST + r] = best_t
+                                    best_prim[r] = prim_r
+                                    state[_U + r] = best_u
+                                    state[_V + r] = best_v
                         while remaining != 0:
                             r = highest_bit(remaining)
                             remaining ^= 1 << r
