@@ -9,20 +9,21 @@ a node once and tests its eight child boxes against the packet's bounds at once
 a box only where each ray would), so the traversal's chain of dependent loads and tests
 is paid once for eight rays. A leaf the packet enters is tested against each of its
 rays (:func:`.packet_slab.enter_child_lanes`), and only the rays that enter it test its
-primitives, with the single-ray walk's test (the same hits, to the bit). A closest-hit
-packet whose rays share the triangle test's axes tests each triangle of the leaf on all its
-rays at once (:func:`.packet_triangle.inside_edges_by_lane`, the rays' shear set up at the
-packet's first leaf) and finishes only the rays inside its edges with the single-ray test;
-forest camera rays on two threads, medians of 9 in alternating processes: closest hit
+primitives, with the single-ray walk's test (the same hits, to the bit). A packet whose rays
+share the triangle test's axes may instead test each triangle of the leaf on all its rays at
+once (:func:`.packet_triangle.inside_edges_by_lane`, the rays' shear set up at the packet's
+first leaf) and finish only the rays inside its edges with the single-ray test. Closest-hit
+packets do so: forest camera rays on two threads, medians of 9 in alternating processes,
 22.3-23.3 -> 18.5-20.4 ms, the full dragon's 42.6-44.3 -> 40.2-42.6 ms; the forest's shadow
-rays (packets tested lane by lane), one thread, medians of 5 processes each: 19.7 -> 18.7 ms,
-the dragon's unchanged. For any hit, where
-a ray leaves at its first hit, it measured the same on the forest and up to 4 % slower on the
-dragon, and is not used. A closest-hit packet takes the entered children nearest first and
-skips an entry popped beyond the farthest best hit of its rays, which also bounds its node
-tests; an any-hit packet drops each ray that found a hit, and stops when none is left. Counting and listing walks take
-the packets too (:func:`wide_packet_crossings_kernel`), each ray's crossings going to its
-own row.
+rays (one thread, medians of 5 processes each) 19.7 -> 18.7 ms, the dragon's unchanged.
+Any-hit shadow packets do so too (forest, one thread, medians of 4: 17.5 -> 15.6 ms; the
+dragon's 57.0 -> 58.6 ms, within the spread of the runs); any-hit camera packets, whose rays
+leave at their first hit, keep the lane-after-lane tests (with the vector test: the same on
+the forest, up to 4 % slower on the dragon). A closest-hit packet takes the entered children
+nearest first and skips an entry popped beyond the farthest best hit of its rays, which also
+bounds its node tests; an any-hit packet drops each ray that found a hit, and stops when none
+is left. Counting and listing walks take the packets too (:func:`wide_packet_crossings_kernel`),
+each ray's crossings going to its own row.
 
 A packet whose rays point to both sides along some axis has no single near face there:
 its rays are walked as packets of one.
@@ -196,7 +197,7 @@ def _packet_walk(ray_first, ray_end, tid, records, links, prim_order, kind, geom
     bounds = bounds_state[tid]
     best_prim = lanes_prim[tid]
     nearest_first = not any_hit and mode == NEAREST
-    lane_triangles = nearest_first and kind == TRIANGLE
+    lane_triangles = mode == NEAREST and (by_lane or not any_hit) and kind == TRIANGLE
     for span_first in range(ray_first, ray_end, SPAN):
         span_end = min(span_first + SPAN, ray_end)
         if not by_lane and span_end - span_first == SPAN and \
