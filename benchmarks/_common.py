@@ -5,6 +5,7 @@ from __future__ import annotations
 import importlib
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -22,11 +23,23 @@ COMPETITORS = {
 LIBUSB_HINT = "apt-get install -y libusb-1.0-0"
 LLVM_HINT = "apt-get install -y llvm"
 SETTLE_SECONDS = 0.05
-"""Idle time before each timed call of a benchmark that interleaves subjects: the thread pools of
-Dr.Jit (Mitsuba) and of Open3D keep their workers spinning for some milliseconds after a call, and
-whichever subject ran next paid for it. Measured on the forest scene: rayaccel's camera-ray any hit
-took 21.0 ms right after a Mitsuba call against 13.1 ms alone; after a pause of 10 ms 16.5, of 20 ms
-14.1, of 50 ms 13.9."""
+"""Idle time before each timed query of a benchmark that interleaves subjects (:func:`settled_seconds`)."""
+
+
+def settled_seconds(run) -> float:
+    """The seconds ``run()`` takes as a subject meets its query in a loop of its own: after a
+    pause of :data:`SETTLE_SECONDS` and one untimed call. The pause: the thread pools of Dr.Jit
+    (Mitsuba) and of Open3D keep their workers spinning for some milliseconds after a call, and
+    whichever subject ran next paid for it (forest scene: rayaccel's camera-ray any hit took 21.0
+    ms right after a Mitsuba call against 13.1 ms alone; after a pause of 20 ms 14.1). The untimed
+    call: a query after an idle pause runs cold (the same query alone, back to back 9.3 ms, after
+    a pause of 10 ms 9.8, 30 ms 12.5, 50 ms 13.2), so each subject is timed on its second call,
+    its structure and rays in the caches as a renderer's loop finds them."""
+    time.sleep(SETTLE_SECONDS)
+    run()
+    start = time.perf_counter()
+    run()
+    return time.perf_counter() - start
 
 
 def _check_mitsuba() -> None:

@@ -28,10 +28,9 @@ from __future__ import annotations
 import argparse
 import os
 import platform
-import time
 
 import numpy as np
-from _common import SETTLE_SECONDS, ensure_competitors, incoherent_rays, primary_rays
+from _common import ensure_competitors, incoherent_rays, primary_rays, settled_seconds
 
 import rayaccel as ra
 from rayaccel.experiments.queries import open3d_scene
@@ -66,14 +65,10 @@ def main() -> None:
     answers = {}
     for round_ in range(args.rounds + 1):
         for who, name, query, run in calls:
-            time.sleep(SETTLE_SECONDS)
-            start = time.perf_counter()
-            answer = run()
-            elapsed = time.perf_counter() - start
             if round_:
-                seconds[who, name, query].append(elapsed)
+                seconds[who, name, query].append(settled_seconds(run))
             else:
-                answers[who, name, query] = answer
+                answers[who, name, query] = run()
     n = args.side ** 2
     print(f"{args.scene}, {len(mesh.faces):,} triangles, {n:,} rays per set, rayaccel {args.method}, "
           f"median of {args.rounds} interleaved rounds; {platform.processor() or platform.machine()}, "

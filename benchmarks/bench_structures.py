@@ -34,8 +34,9 @@ Open3D tensors, Dr.Jit arrays) before timing; every timed call returns NumPy arr
 Every figure is the median of ``ROUNDS`` rounds in which all subjects take turns at
 every query, so that all of them meet the same phases of a noisy machine: read the
 ratios (to the best peer of each column, and to Embree on all cores), not the
-absolute figures. Before each timed call the benchmark pauses (``_common.SETTLE_SECONDS``),
-so that no peer's thread pool still spins while the next subject is timed. Each subject's
+absolute figures. Each timed call follows a pause and an untimed call of the same query
+(``_common.settled_seconds``): no peer's thread pool still spins while the next subject is
+timed, and each subject meets its query warm, as in a loop of its own. Each subject's
 answers are compared with the first rayaccel method's (same primitive for closest hit,
 same verdict for any hit; the peers trace in float32).
 
@@ -50,7 +51,6 @@ import datetime
 import importlib.metadata
 import platform
 import sys
-import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -62,11 +62,11 @@ from rich.table import Table
 sys.path.insert(0, str(Path(__file__).parent))
 from _common import (  # noqa: E402
     ROOT,
-    SETTLE_SECONDS,
     ensure_competitors,
     incoherent_rays,
     light_position,
     primary_rays,
+    settled_seconds,
     shadow_rays,
 )
 from peers import (  # noqa: E402
@@ -179,15 +179,11 @@ def measure(subjects: list[Subject], rays: dict[str, RaySet], scene_name: str,
         phase = "warm-up" if round_ == 0 else f"round {round_}/{ROUNDS}"
         for i, column, call in calls:
             progress.update(task, description=f"{scene_name} {phase}: {subjects[i].label}, {column}")
-            time.sleep(SETTLE_SECONDS)
-            start = time.perf_counter()
-            answer = call()
-            elapsed = time.perf_counter() - start
             if round_ == 0:
-                expected = reference.setdefault(column, answer)
+                expected = reference.setdefault(column, answer := call())
                 rows[i].differ[column] = int(np.count_nonzero(np.asarray(answer) != expected))
             else:
-                seconds[i, column].append(elapsed)
+                seconds[i, column].append(settled_seconds(call))
             progress.advance(task)
     progress.remove_task(task)
     for (i, column), times in seconds.items():
