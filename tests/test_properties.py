@@ -98,6 +98,17 @@ def _check(scene, origins, directions, t_min, t_max, variant):
     assert (counters.tests[reference.prim >= 0] >= 1).all()
 
 
+@pytest.mark.parametrize("variant", VARIANTS, ids=repr)
+def test_a_scene_of_one_point_far_from_the_origin_builds_and_agrees_with_brute_force(variant):
+    """One degenerate triangle, its three corners one vertex at y = 3e20 (a scene the generator
+    found): the uniform grid's box around it, padded by 1e-12 of nothing, had no size at that
+    magnitude, and its build crashed on a NaN resolution."""
+    mesh = ra.TriangleMesh([[0.0, 3e20, 0.0], [2e20, 0.0, 3e20]], [[0, 0, 0]])
+    origins = np.array([[0.0, 0.0, 0.0], [0.0, 4e20, 0.0], [1e20, 3e20, 1e20]])
+    directions = np.array([[0.0, 1.0, 0.0], [0.0, -1.0, 0.0], [-1.0, 0.0, -1.0]])
+    _check(mesh, origins, directions, np.zeros(3), np.full(3, np.inf), variant)
+
+
 @settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(data=st.data(), variant=st.sampled_from(VARIANTS))
 def test_generated_triangle_scenes_agree_with_brute_force(data, variant):

@@ -169,15 +169,83 @@ def _set_up_lanes(state, origins, directions, packet_first, n_lanes):
 
 
 @inline_kernel
+def _keep_lane_hit(state, best_prim, r, best_t, prim_r, best_u, best_v):
+    """Store lane ``r``'s best hit when the leaf changed it; returns whether it did."""
+    if prim_r == best_prim[r] and best_t == state[_BEST + r]:
+        return False
+    state[_BEST + r] = best_t
+    best_prim[r] = prim_r
+    state[_U + r] = best_u
+    state[_V + r] = best_v
+    return True
+
+
+@inline_kernel
+def _leaf_lane_after_lane(mode, action, hit_slot, kind, geom, prim_order, first, count, origins, directions,
+                          packet_first, lanes, done, state, best_prim, any_hit):
+    """Visit the ``count`` primitives of a leaf from row ``first`` on with each ray of ``lanes`` in
+    turn, as the single-ray walk does (:func:`.traverse_wide.visit_leaf`); returns ``done`` with the
+    lanes of an any-hit walk that found a hit added, and whether some lane's best hit changed."""
+    improved = False
+    remaining = lanes
+    while remaining != 0:
+        r = highest_bit(remaining)
+        remaining ^= 1 << r
+        i = packet_first + r
+        ray = ray_setup(origins[i, 0], origins[i, 1], origins[i, 2], directions[i, 0], directions[i, 1],
+                        directions[i, 2])
+        best_t, prim_r, best_u, best_v, _ = visit_leaf(mode, action, result_row(hit_slot, i), kind, geom, prim_order,
+                                                       first, count, ray, state[_T_MIN + r], state[_BEST + r],
+                                                       best_prim[r], state[_U + r], state[_V + r], any_hit)
+        if any_hit and prim_r >= 0:
+            done |= 1 << r
+        improved |= _keep_lane_hit(state, best_prim, r, best_t, prim_r, best_u, best_v)
+    return done, improved
+
+
+@inline_kernel
+def _leaf_by_triangle(mode, action, hit_slot, kind, geom, prim_order, first, count, origins, directions,
+                      packet_first, lanes, done, kx, ky, kz, state, best_prim, any_hit):
+    """:func:`_leaf_lane_after_lane` for rays that share the triangle test's axes ``kx, ky, kz``
+    (their constants set up by :func:`_set_up_lanes`): each triangle tested on all the live rays
+    at once (:func:`.packet_triangle.inside_edges_by_lane`), the rays inside its edges finished by
+    the single-ray test."""
+    improved = False
+    for k in range(first, first + count):
+        live = lanes & ~done
+        if live == 0:
+            break
+        inside = inside_edges_by_lane(state, live, corner(geom, k, 0, kx), corner(geom, k, 0, ky),
+                                      corner(geom, k, 0, kz), corner(geom, k, 1, kx), corner(geom, k, 1, ky),
+                                      corner(geom, k, 1, kz), corner(geom, k, 2, kx), corner(geom, k, 2, ky),
+                                      corner(geom, k, 2, kz))
+        while inside != 0:
+            r = highest_bit(inside)
+            inside ^= 1 << r
+            i = packet_first + r
+            ray = (origins[i, 0], origins[i, 1], origins[i, 2], directions[i, 0], directions[i, 1], directions[i, 2],
+                   kx, ky, kz, state[_SX + r], state[_SY + r], state[_SZ + r], state[_OKX + r], state[_OKY + r],
+                   state[_OKZ + r])
+            best_t, prim_r, best_u, best_v, stop = visit_prim_in_mode(
+                mode, action, result_row(hit_slot, i), kind, geom, k, prim_order[unsigned(k)], ray, state[_T_MIN + r],
+                state[_BEST + r], best_prim[r], state[_U + r], state[_V + r], any_hit)
+            if stop:
+                done |= 1 << r
+            improved |= _keep_lane_hit(state, best_prim, r, best_t, prim_r, best_u, best_v)
+    return done, improved
+
+
+@inline_kernel
 def _root_culls_span(records, origins, directions, t_min, t_max, span_first, bounds, child_entry):
     """Whether the :data:`SPAN` rays from ``span_first``, whose directions have one strict sign
     along each axis, miss every child box of the root, by their interval bounds."""
     if bound_span(origins, directions, span_first, SPAN // PACKET, bounds) != 0:
         return False
     t_low, t_high = ray_limit(t_min, span_first), ray_limit(t_max, span_first)
-    for i in range(span_first + 1, span_first + SPAN if t_min.shape[0] > 1 or t_max.shape[0] > 1 else 0):
-        t_low = min(t_low, ray_limit(t_min, i))
-        t_high = max(t_high, ray_limit(t_max, i))
+    if t_min.shape[0] > 1 or t_max.shape[0] > 1:
+        for i in range(span_first + 1, span_first + SPAN):
+            t_low = min(t_low, ray_limit(t_min, i))
+            t_high = max(t_high, ray_limit(t_max, i))
     bounds[BOUND_T_MIN] = t_low
     bounds[BOUND_BEST] = t_high
     return enter_children_interval(records, 0, bounds, child_entry) == 0
@@ -289,61 +357,17 @@ def _packet_walk(ray_first, ray_end, tid, records, links, prim_order, kind, geom
                             node = stack_link[tid, sp]
                             break
                         first = stack_link[tid, sp]
-                        improved = False
                         if lane_triangles and not lanes_set_up:
                             shared_axes, kx, ky, kz = _set_up_lanes(state, origins, directions, packet_first, n_lanes)
                             lanes_set_up = True
-                        by_triangle = lane_triangles and shared_axes
-                        remaining = 0 if by_triangle else lanes
-                        for k in range(first, first + (count if by_triangle else 0)):
-                            live = lanes & ~done
-                            if live == 0:
-                                break
-                            inside = inside_edges_by_lane(
-                                state, live, corner(geom, k, 0, kx), corner(geom, k, 0, ky), corner(geom, k, 0, kz),
-                                corner(geom, k, 1, kx), corner(geom, k, 1, ky), corner(geom, k, 1, kz),
-                                corner(geom, k, 2, kx), corner(geom, k, 2, ky), corner(geom, k, 2, kz))
-                            while inside != 0:
-                                r = highest_bit(inside)
-                                inside ^= 1 << r
-                                i = packet_first + r
-                                ray = (origins[i, 0], origins[i, 1], origins[i, 2], directions[i, 0], directions[i, 1],
-                                       directions[i, 2], kx, ky, kz, state[_SX + r], state[_SY + r], state[_SZ + r],
-                                       state[_OKX + r], state[_OKY + r], state[_OKZ + r])
-                                best_t, prim_r, best_u, best_v, stop = visit_prim_in_mode(
-                                    mode, action, result_row(hit_slot, i), kind, geom, k, prim_order[unsigned(k)], ray,
-                                    state[_T_MIN + r], state[_BEST + r], best_prim[r], state[_U + r], state[_V + r],
-                                    any_hit)
-                                if stop:
-                                    done |= 1 << r
-                                if prim_r != best_prim[r] or best_t != state[_BEST + r]:
-                                    improved = True
-                                    state[_BEST + r] = best_t
-                                    best_prim[r] = prim_r
-                                    state[_U + r] = best_u
-                                    state[_V + r] = best_v
-                        while remaining != 0:
-                            r = highest_bit(remaining)
-                            remaining ^= 1 << r
-                            i = packet_first + r
-                            ray = ray_setup(origins[i, 0], origins[i, 1], origins[i, 2],
-                                            directions[i, 0], directions[i, 1], directions[i, 2])
-                            best_t = state[_BEST + r]
-                            prim_r = best_prim[r]
-                            best_u = state[_U + r]
-                            best_v = state[_V + r]
-                            best_t, prim_r, best_u, best_v, _ = visit_leaf(mode, action, result_row(hit_slot, i), kind,
-                                                                           geom, prim_order, first, count, ray,
-                                                                           state[_T_MIN + r], best_t, prim_r, best_u,
-                                                                           best_v, any_hit)
-                            if any_hit and prim_r >= 0:
-                                done |= 1 << r
-                            if prim_r != best_prim[r] or best_t != state[_BEST + r]:
-                                improved = True
-                                state[_BEST + r] = best_t
-                                best_prim[r] = prim_r
-                                state[_U + r] = best_u
-                                state[_V + r] = best_v
+                        if lane_triangles and shared_axes:
+                            done, improved = _leaf_by_triangle(mode, action, hit_slot, kind, geom, prim_order, first,
+                                                               count, origins, directions, packet_first, lanes, done,
+                                                               kx, ky, kz, state, best_prim, any_hit)
+                        else:
+                            done, improved = _leaf_lane_after_lane(mode, action, hit_slot, kind, geom, prim_order,
+                                                                   first, count, origins, directions, packet_first,
+                                                                   lanes, done, state, best_prim, any_hit)
                         if any_hit and done == active:
                             sp = 0
                             break

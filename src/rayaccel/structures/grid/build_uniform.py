@@ -43,18 +43,24 @@ ROW_KEYS = 1 << 20  # most distinct keys of the cell-row sort
 
 
 def grid_box(scene_lo: np.ndarray, scene_hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The scene box, padded a little and given a minimum thickness on flat axes."""
+    """The scene box, padded a little and given a minimum thickness on flat axes; at least a few
+    units in the last place of its coordinates on every axis, so that the box of a scene that is
+    one point far from the origin (a degenerate triangle at 3e20, where a pad of 1e-12 rounds
+    away) still has cells of positive size."""
     extent = scene_hi - scene_lo
-    size = max(float(extent.max()), 1e-12)
+    ulp = np.spacing(np.maximum(np.abs(scene_lo), np.abs(scene_hi)))
+    size = max(float(extent.max()), 1e-12, 8.0 * float(ulp.max()))
     pad = np.maximum(1e-7 * size, 0.5 * np.maximum(1e-3 * size - extent, 0.0))
-    return scene_lo - pad, scene_hi + pad
+    return scene_lo - np.maximum(pad, 4.0 * ulp), scene_hi + np.maximum(pad, 4.0 * ulp)
 
 
 def resolution_for(extent: np.ndarray, n_cells: float) -> np.ndarray:
     """Cells per axis, about ``n_cells`` in all, shaped to the box ``extent``."""
     n_cells = min(max(float(n_cells), 1.0), float(MAX_CELLS))
     side = (float(np.prod(extent)) / n_cells) ** (1.0 / 3.0)
-    res = np.maximum(1, np.round(extent / side)).astype(np.int64)
+    if not side > 0.0:
+        return np.ones(3, dtype=np.int64)
+    res = np.clip(np.round(extent / side), 1, MAX_CELLS).astype(np.int64)
     while res.prod() > MAX_CELLS:
         res = np.maximum(1, res * 0.95).astype(np.int64)
     return res
