@@ -64,8 +64,9 @@ from ..._jit import chunk_kernel, inline_kernel, unsigned
 from ...geometry.gather import corner
 from ...geometry.kinds import TRIANGLE
 from ...geometry.primitive import ray_setup
+from ...geometry.triangle import intersect_triangle
 from ...rays import ray_limit, result_row
-from ..actions import NEAREST, finish_misses_in_mode, finish_ray_in_mode, visit_prim_in_mode
+from ..actions import NEAREST, finish_misses_in_mode, finish_ray_in_mode, is_closer
 from .packet_slab import (
     BOUND_BEST,
     BOUND_T_MIN,
@@ -204,12 +205,12 @@ def _leaf_lane_after_lane(mode, action, hit_slot, kind, geom, prim_order, first,
 
 
 @inline_kernel
-def _leaf_by_triangle(mode, action, hit_slot, kind, geom, prim_order, first, count, origins, directions,
-                      packet_first, lanes, done, kx, ky, kz, state, best_prim, any_hit):
-    """:func:`_leaf_lane_after_lane` for rays that share the triangle test's axes ``kx, ky, kz``
-    (their constants set up by :func:`_set_up_lanes`): each triangle tested on all the live rays
-    at once (:func:`.packet_triangle.inside_edges_by_lane`), the rays inside its edges finished by
-    the single-ray test."""
+def _leaf_by_triangle(geom, prim_order, first, count, lanes, done, kx, ky, kz, state, best_prim, any_hit):
+    """:func:`_leaf_lane_after_lane` for a closest-hit or any-hit walk over triangles whose rays
+    share the triangle test's axes ``kx, ky, kz`` (their constants set up by
+    :func:`_set_up_lanes`): each triangle tested on all the live rays at once
+    (:func:`.packet_triangle.inside_edges_by_lane`), the rays inside its edges finished by the
+    single-ray test, a hit kept as :func:`..actions.visit_prim_in_mode` keeps it."""
     improved = False
     for k in range(first, first + count):
         live = lanes & ~done
@@ -222,16 +223,14 @@ def _leaf_by_triangle(mode, action, hit_slot, kind, geom, prim_order, first, cou
         while inside != 0:
             r = highest_bit(inside)
             inside ^= 1 << r
-            i = packet_first + r
-            ray = (origins[i, 0], origins[i, 1], origins[i, 2], directions[i, 0], directions[i, 1], directions[i, 2],
-                   kx, ky, kz, state[_SX + r], state[_SY + r], state[_SZ + r], state[_OKX + r], state[_OKY + r],
-                   state[_OKZ + r])
-            best_t, prim_r, best_u, best_v, stop = visit_prim_in_mode(
-                mode, action, result_row(hit_slot, i), kind, geom, k, prim_order[unsigned(k)], ray, state[_T_MIN + r],
-                state[_BEST + r], best_prim[r], state[_U + r], state[_V + r], any_hit)
-            if stop:
-                done |= 1 << r
-            improved |= _keep_lane_hit(state, best_prim, r, best_t, prim_r, best_u, best_v)
+            t, u, v = intersect_triangle(geom, k, state[_OKX + r], state[_OKY + r], state[_OKZ + r], kx, ky, kz,
+                                         state[_SX + r], state[_SY + r], state[_SZ + r], state[_T_MIN + r],
+                                         state[_BEST + r])
+            prim = prim_order[unsigned(k)]
+            if is_closer(t, prim, state[_BEST + r], best_prim[r]):
+                improved |= _keep_lane_hit(state, best_prim, r, t, prim, u, v)
+                if any_hit:
+                    done |= 1 << r
     return done, improved
 
 
@@ -361,9 +360,8 @@ def _packet_walk(ray_first, ray_end, tid, records, links, prim_order, kind, geom
                             shared_axes, kx, ky, kz = _set_up_lanes(state, origins, directions, packet_first, n_lanes)
                             lanes_set_up = True
                         if lane_triangles and shared_axes:
-                            done, improved = _leaf_by_triangle(mode, action, hit_slot, kind, geom, prim_order, first,
-                                                               count, origins, directions, packet_first, lanes, done,
-                                                               kx, ky, kz, state, best_prim, any_hit)
+                            done, improved = _leaf_by_triangle(geom, prim_order, first, count, lanes, done, kx, ky,
+                                                               kz, state, best_prim, any_hit)
                         else:
                             done, improved = _leaf_lane_after_lane(mode, action, hit_slot, kind, geom, prim_order,
                                                                    first, count, origins, directions, packet_first,
