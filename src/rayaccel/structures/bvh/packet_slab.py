@@ -249,14 +249,22 @@ def load_packet(typingctx, origins, directions, first, state, bounds):
             negative = builder.icmp_unsigned("==", signs, ir.IntType(PACKET)(0))
             mixed = builder.or_(mixed, builder.not_(builder.or_(positive, negative)))
             o_low, o_high = _reduce_lanes(builder, origin[axis], "<"), _reduce_lanes(builder, origin[axis], ">")
-            values = (builder.select(positive, ir.Constant(double, float(axis)), ir.Constant(double, float(axis + 3))),
-                      builder.select(positive, o_high, o_low), builder.select(positive, o_low, o_high),
-                      _reduce_lanes(builder, inverse[axis], "<"), _reduce_lanes(builder, inverse[axis], ">"))
-            for k, value in enumerate(values):
-                builder.store(value, builder.gep(bounds_data, [ir.Constant(intp, 5 * axis + k)]))
+            _store_axis_bounds(builder, bounds_data, axis, positive, o_low, o_high,
+                               _reduce_lanes(builder, inverse[axis], "<"), _reduce_lanes(builder, inverse[axis], ">"))
         return builder.zext(mixed, ir.IntType(64))
 
     return signature, codegen
+
+
+def _store_axis_bounds(builder, bounds_data, axis, positive, o_low, o_high, inv_low, inv_high):
+    """Write one axis's five interval bounds (:data:`BOUND_VALUES`) of rays whose directions along
+    it are all positive (``positive`` true) or all negative: the near block, the extreme origins
+    that bound the near and far distances, and the ends of the inverse directions."""
+    double = ir.DoubleType()
+    values = (builder.select(positive, ir.Constant(double, float(axis)), ir.Constant(double, float(axis + 3))),
+              builder.select(positive, o_high, o_low), builder.select(positive, o_low, o_high), inv_low, inv_high)
+    for k, value in enumerate(values):
+        builder.store(value, builder.gep(bounds_data, [ir.IntType(64)(5 * axis + k)]))
 
 
 def _lane_axes(part):
@@ -339,11 +347,8 @@ def bound_span(typingctx, origins, directions, first, packets, bounds):
             positive = builder.fcmp_ordered(">", d_low, zero)
             signed = builder.or_(positive, builder.fcmp_ordered("<", d_high, zero))
             unsigned = builder.or_(unsigned, builder.not_(signed))
-            values = (builder.select(positive, ir.Constant(double, float(axis)), ir.Constant(double, float(axis + 3))),
-                      builder.select(positive, o_high, o_low), builder.select(positive, o_low, o_high),
-                      builder.fdiv(one, d_high), builder.fdiv(one, d_low))
-            for k, value in enumerate(values):
-                builder.store(value, builder.gep(bounds_data, [ir.Constant(intp, 5 * axis + k)]))
+            _store_axis_bounds(builder, bounds_data, axis, positive, o_low, o_high, builder.fdiv(one, d_high),
+                               builder.fdiv(one, d_low))
         return builder.zext(unsigned, ir.IntType(64))
 
     return signature, codegen
