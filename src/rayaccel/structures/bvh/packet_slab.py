@@ -268,8 +268,8 @@ def _store_axis_bounds(builder, bounds_data, axis, positive, o_low, o_high, inv_
 
 
 def _lane_axes(part):
-    """The axis each lane of the ``part``-th vector of eight float64 read from a run of (n, 3)
-    rows holds (rows start on a multiple of eight)."""
+    """The axis each lane holds of the ``part``-th of the three vectors of eight float64 that hold
+    eight consecutive rows of an (n, 3) array."""
     return [(PACKET * part + lane) % 3 for lane in range(PACKET)]
 
 
