@@ -78,6 +78,7 @@ from peers import (  # noqa: E402
     RayaccelSubject,
     RaySet,
     Subject,
+    interleaved_build_seconds,
 )
 
 import rayaccel as ra  # noqa: E402
@@ -122,7 +123,8 @@ class SceneResult:
 
 
 def build_subjects(scene, methods: list[str], competitors: set[str], progress: Progress) -> list[Subject]:
-    """rayaccel's structures, the as-given row and every available peer, each built and timed."""
+    """rayaccel's structures, the as-given row and every available peer, each built; then every
+    build timed again in interleaved rounds (:func:`peers.interleaved_build_seconds`)."""
     makers = [(f"rayaccel {m}", lambda m=m: [RayaccelSubject(scene, m)]) for m in methods]
     if "embreex" in competitors:
         makers.append(("Embree", lambda: [(e := EmbreePeer(scene)), *([e.with_threads(CORES)] * (CORES > 1))]))
@@ -140,6 +142,12 @@ def build_subjects(scene, methods: list[str], competitors: set[str], progress: P
     if sorted_ones:
         first = sorted_ones[0]
         subjects.insert(len(methods), first.variant(f"{first.label}, rays as given", reorder=False))
+    progress.update(task, description=f"timing the builds, {BUILD_REPEATS} interleaved rounds")
+    makes = list({id(s.make): s.make for s in subjects}.values())
+    for make, seconds in zip(makes, interleaved_build_seconds(makes)):
+        for subject in subjects:
+            if subject.make is make:
+                subject.build_seconds = seconds
     progress.remove_task(task)
     return subjects
 
@@ -309,7 +317,7 @@ def write_markdown(results: list[SceneResult], competitors: set[str], path: Path
 
     missing = [COMPETITORS[name] for name in COMPETITORS if name not in competitors]
     lines = ["# rayaccel against its peers", "", *(f"- {item}" for item in environment()),
-             f"- {ROUNDS} interleaved rounds, medians; build: median of {BUILD_REPEATS} builds",
+             f"- {ROUNDS} interleaved rounds, medians; build: median of {BUILD_REPEATS} interleaved builds",
              (f"- shadow rays: from the primary hits toward a point light at the framing camera's eye raised by "
               f"the scene's bounding radius along +y, over t in [{SHADOW_T_MIN:g}, 1]; peers, which take no t_min, "
               "get origins moved by the epsilon"),

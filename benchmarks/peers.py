@@ -15,6 +15,7 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
+from _common import SETTLE_SECONDS
 
 import rayaccel as ra
 
@@ -40,14 +41,21 @@ class RaySet:
         return self.origins + self.t_min * self.directions, self.directions, self.t_max - self.t_min
 
 
-def timed_builds(make, repeats: int = BUILD_REPEATS):
-    """``(last object made, median seconds)`` of ``repeats`` calls of ``make()``."""
-    seconds = []
+def interleaved_build_seconds(makes: list, repeats: int = BUILD_REPEATS) -> list[float]:
+    """The median seconds of each of ``makes`` over ``repeats`` rounds in which they take turns, so
+    that every build meets the same phases of a noisy machine. Timed one after another instead,
+    the full dragon's Embree build came out at 0.549 s in one run and 0.768 s in another, ours at
+    0.574-0.648 s; nine interleaved rounds gave 0.485 s against Embree's 0.555 s. Each build follows
+    the pause of :data:`_common.SETTLE_SECONDS`, so that no peer's thread pool still spins (right
+    after Mitsuba's build, ours measured 0.596 s in one run)."""
+    seconds = [[] for _ in makes]
     for _ in range(repeats):
-        start = time.perf_counter()
-        made = make()
-        seconds.append(time.perf_counter() - start)
-    return made, float(np.median(seconds))
+        for k, make in enumerate(makes):
+            time.sleep(SETTLE_SECONDS)
+            start = time.perf_counter()
+            make()
+            seconds[k].append(time.perf_counter() - start)
+    return [float(np.median(times)) for times in seconds]
 
 
 class Subject:
@@ -65,6 +73,7 @@ class Subject:
     is_peer = True
     is_baseline = False  # the peer every row is also compared with: Embree on all cores
     group: str | None = None
+    make = None  # builds the subject's structure again, for interleaved_build_seconds
     build_seconds = 0.0
 
     def variant(self, label: str, short: str | None = None, **changes) -> Subject:
@@ -89,7 +98,8 @@ class RayaccelSubject(Subject):
     is_peer = False
 
     def __init__(self, scene, method: str, reorder: bool = True):
-        self.accel, self.build_seconds = timed_builds(lambda: ra.build(scene, method))
+        self.make = lambda: ra.build(scene, method)
+        self.accel = self.make()
         self.reorder = reorder
         self.label = self.short = f"rayaccel {method}"
 
@@ -108,7 +118,8 @@ class EmbreePeer(Subject):
     parts traced on Python threads, as ``run`` releases the GIL."""
 
     def __init__(self, mesh, threads: int = 1):
-        self.scene, self.build_seconds = timed_builds(lambda: self._build(mesh))
+        self.make = lambda: self._build(mesh)
+        self.scene = self.make()
         self.threads, self.is_baseline = threads, threads == CORES
         self.label, self.short = self._label(threads), f"Embree {threads}T"
 
@@ -163,7 +174,8 @@ class Open3dPeer(Subject):
         import open3d
 
         self.o3d = open3d
-        self.scene, self.build_seconds = timed_builds(lambda: self._build(mesh))
+        self.make = lambda: self._build(mesh)
+        self.scene = self.make()
         self.label = f"Open3D RaycastingScene, {CORES} threads"
         self.short = "Open3D"
 
@@ -201,7 +213,8 @@ class MitsubaPeer(Subject):
 
         mitsuba.set_variant("llvm_ad_rgb")
         self.mi, self.dr = mitsuba, drjit
-        self.scene, self.build_seconds = timed_builds(lambda: self._build(mesh))
+        self.make = lambda: self._build(mesh)
+        self.scene = self.make()
         self.coherent = coherent
         self.group = f"Mitsuba 3 llvm_ad_rgb, {drjit.thread_count()} threads"
         self.short = "Mitsuba 3"
