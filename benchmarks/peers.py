@@ -45,9 +45,8 @@ def interleaved_build_seconds(makes: list, repeats: int = BUILD_REPEATS) -> list
     """The median seconds of each of ``makes`` over ``repeats`` rounds in which they take turns, so
     that every build meets the same phases of a noisy machine. Timed one after another instead,
     the full dragon's Embree build came out at 0.549 s in one run and 0.768 s in another, ours at
-    0.574-0.648 s; nine interleaved rounds gave 0.485 s against Embree's 0.555 s. Each build follows
-    the pause of :data:`_common.SETTLE_SECONDS`, so that no peer's thread pool still spins (right
-    after Mitsuba's build, ours measured 0.596 s in one run)."""
+    0.574-0.648 s; nine interleaved rounds in a process of their own gave 0.485 s against Embree's
+    0.555 s. Each build follows the pause of :data:`_common.SETTLE_SECONDS`, as the timed queries do."""
     seconds = [[] for _ in makes]
     for _ in range(repeats):
         for k, make in enumerate(makes):
