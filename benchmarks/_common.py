@@ -28,10 +28,10 @@ SETTLE_SECONDS = 0.05
 
 def settled_seconds(run) -> float:
     """The seconds ``run()`` takes as a subject meets its query in a loop of its own: after a
-    pause of :data:`SETTLE_SECONDS` and one untimed call. The pause: the thread pools of Dr.Jit
-    (Mitsuba) and of Open3D keep their workers spinning for some milliseconds after a call, and
-    whichever subject ran next paid for it (forest scene: rayaccel's camera-ray any hit took 21.0
-    ms right after a Mitsuba call against 13.1 ms alone; after a pause of 20 ms 14.1). The untimed
+    pause of :data:`SETTLE_SECONDS` and one untimed call. The pause: Dr.Jit's thread pool (Mitsuba)
+    keeps its workers busy for some milliseconds after a call, and whichever subject ran next paid
+    for it (forest scene: rayaccel's camera-ray any hit took 21.0 ms right after a Mitsuba call
+    against 13.1 ms alone; after a pause of 20 ms 14.1); Open3D's thread pool was not measured. The untimed
     call: a query after an idle pause runs cold (the same query alone, back to back 9.3 ms, after
     a pause of 10 ms 9.8, 30 ms 12.5, 50 ms 13.2), so each subject is timed on its second call,
     its structure and rays in the caches as a renderer's loop finds them."""
