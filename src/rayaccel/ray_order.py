@@ -164,6 +164,11 @@ def _neighbour_pairs(origins, directions, stride, steps, cosines):
         cosines[k] = dot / np.sqrt(square_0 * square_1)
 
 
+def _sample_stride(n: int) -> int:
+    """The step between the sampled rays of a batch of ``n``: at most :data:`_SAMPLE` of them."""
+    return max(1, n // _SAMPLE)
+
+
 def sample_neighbours(batch: RayBatch, scene_lo, scene_hi) -> Neighbours:
     """The :class:`Neighbours` of ``batch`` in a scene whose box is ``scene_lo``..``scene_hi``,
     from at most :data:`_SAMPLE` pairs of consecutive rays; a batch of fewer than two rays
@@ -173,7 +178,7 @@ def sample_neighbours(batch: RayBatch, scene_lo, scene_hi) -> Neighbours:
     scene_size = float(np.max(scene_hi - scene_lo))
     if n < 2:
         return Neighbours(n, 0.0, scene_size, 1.0)
-    stride = max(1, n // _SAMPLE)
+    stride = _sample_stride(n)
     pairs = len(range(0, n - 1, stride))
     steps, cosines = np.empty(pairs), np.empty(pairs)
     _neighbour_pairs(batch.origins, batch.directions, stride, steps, cosines)
@@ -225,7 +230,7 @@ def coherent_batch(batch: RayBatch, scene_lo: np.ndarray, scene_hi: np.ndarray) 
     n = len(batch.origins)
     if sample_neighbours(batch, scene_lo, scene_hi).start_together(_NEARBY):
         return batch
-    origins = batch.origins[np.arange(0, n - 1, max(1, n // _SAMPLE))]
+    origins = batch.origins[:n - 1:_sample_stride(n)]
     lo, extent = origins.min(axis=0), np.ptp(origins, axis=0)
     scale = (1 << _BITS_PER_AXIS) / np.where(extent > 0.0, extent, 1.0)
     sorted_batch = RayBatch(np.empty_like(batch.origins), np.empty_like(batch.directions),

@@ -11,7 +11,7 @@ from ..._jit import thread_count, thread_rows
 from ..._validate import check_number
 from ...geometry.gather import layout_nbytes, layout_rows
 from ...geometry.kdop import KDOP_NORMALS, kdop_surface_areas
-from ...ray_order import interleaving_pays, lane_packets_pay, packets_pay, sample_neighbours
+from ...ray_order import MIN_PACKET_RAYS, interleaving_pays, lane_packets_pay, packets_pay, sample_neighbours
 from ...stats import surface_area_stats
 from ..actions import COUNT, NEAREST
 from ..base import Accelerator, walk_rays
@@ -234,9 +234,10 @@ class BoundingVolumeHierarchy(Accelerator):
                       *batch, any_hit, stack_node, stack_t, action, work)
             return
         tree = (self.wide, self.wide.view(np.int32), self.prim_order, self.scene.kind, self.geometry)
-        sampled = sample_neighbours(batch, *self.scene_box)
+        sampled = None
         walk = None
-        if work.shape[0] == 0 and self.options.get("packets", True):
+        if work.shape[0] == 0 and self.options.get("packets", True) and len(batch.origins) >= MIN_PACKET_RAYS:
+            sampled = sample_neighbours(batch, *self.scene_box)
             if packets_pay(batch, *self.scene_box, sampled):
                 walk = _PACKET_WALKS.get(action.mode, wide_packet_crossings_kernel)
             elif lane_packets_pay(batch, *self.scene_box, sampled):
