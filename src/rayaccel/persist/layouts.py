@@ -262,7 +262,9 @@ def _load_hybrid(accel, meta, arrays):
 # --- kdtree -------------------------------------------------------------------------------
 
 def _save_kdtree(accel):
-    return {}, _named(accel.kd, "kd")
+    kd = accel.kd
+    return {}, {"kd.lo": kd.lo, "kd.hi": kd.hi, "kd.node_split": np.ascontiguousarray(kd.node_split),
+                "kd.node_link": np.ascontiguousarray(kd.node_link), "kd.leaf_prims": kd.leaf_prims}
 
 
 def _load_kdtree(accel, meta, arrays):
@@ -281,7 +283,7 @@ def _load_kdtree(accel, meta, arrays):
     parents = np.flatnonzero(inner)
     c.single_parents("kd-tree", np.concatenate((parents, parents)), np.concatenate((below, below + 1)), n)
     c.leaf_ranges("kd-tree", link[~inner, 0], count[~inner], len(leaf_prims))
-    accel.kd = KdTreeArrays(lo, hi, split, link, leaf_prims)
+    accel.kd = KdTreeArrays.pack(lo, hi, split, link, leaf_prims)
     accel._derive_cells()
 
 

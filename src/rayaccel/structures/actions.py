@@ -270,10 +270,11 @@ def finish_misses_in_mode(mode, action, hit_slot, first, end):
 
 
 @inline_kernel
-def intersect_references(action, row, first, end, refs, mailbox, tid, stamp, kind, geom, ray, t_min, best_t,
+def intersect_references(mode, action, row, first, end, refs, mailbox, tid, stamp, kind, geom, ray, t_min, best_t,
                          best_prim, best_u, best_v, n_tests, n_skips, any_hit):
     """Visit the primitives ``refs[first:end]`` (a cell's or a leaf's references) with the
-    action, skipping those already stamped in the mailbox, when there is one (an empty
+    action, in ``mode`` (its own, or a constant that prunes the others, see
+    :func:`visit_prim_in_mode`), skipping those already stamped in the mailbox, when there is one (an empty
     array otherwise), and stamping the others; returns the walk's ``(best_t, best_prim,
     best_u, best_v)`` and the counters ``(tests, skips)``, updated."""
     for k in range(first, end):
@@ -284,8 +285,8 @@ def intersect_references(action, row, first, end, refs, mailbox, tid, stamp, kin
                 continue
             mailbox[tid, prim] = stamp
         n_tests += 1
-        best_t, best_prim, best_u, best_v, stop = visit_prim(action, row, kind, geom, prim, prim, ray, t_min, best_t,
-                                                             best_prim, best_u, best_v, any_hit)
+        best_t, best_prim, best_u, best_v, stop = visit_prim_in_mode(mode, action, row, kind, geom, prim, prim, ray,
+                                                                     t_min, best_t, best_prim, best_u, best_v, any_hit)
         if stop:
             break
     return best_t, best_prim, best_u, best_v, n_tests, n_skips

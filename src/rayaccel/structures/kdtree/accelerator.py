@@ -12,13 +12,14 @@ import numpy as np
 from ..._jit import kernel, thread_count, thread_rows
 from ..._validate import check_number
 from ...stats import box_area, surface_area_stats
+from ..actions import NEAREST
 from ..base import Accelerator, walk_rays
 from ..grid.build_uniform import grid_box
 from .build_sah_binned import build_binned_top
 from .build_sah_events import build_subtrees
 from .layout import LEAF, KdTreeArrays, node_cells
 from .nearest import kdtree_nearest_kernel
-from .traverse import kdtree_trace_kernel
+from .traverse import kdtree_closest_kernel, kdtree_crossings_kernel
 
 __all__ = ["KdTree"]
 
@@ -173,7 +174,7 @@ class KdTree(Accelerator):
 
     def _derive_cells(self) -> None:
         """The cell and depth of every node, from the built (or loaded) tree."""
-        self._cells, depth = node_cells(self.kd.lo, self.kd.hi, self.kd.node_split, self.kd.node_link)
+        self._cells, depth = node_cells(self.kd.lo, self.kd.hi, self.kd.node_records)
         self._depth = depth.astype(np.uint8)
         self.max_depth = int(depth.max())
 
@@ -202,7 +203,7 @@ class KdTree(Accelerator):
         node_split, node_link, leaf_prims = tree
         if len(node_split) >= np.iinfo(np.int32).max or len(leaf_prims) >= np.iinfo(np.int32).max:
             raise ValueError("the kd-tree outgrew int32 indices; raise leaf_size or lower max_depth")
-        return KdTreeArrays(lo, hi, node_split, node_link, leaf_prims)
+        return KdTreeArrays.pack(lo, hi, node_split, node_link, leaf_prims)
 
     @staticmethod
     def _binned_top(pool, scene, bounds, root_cell, threads, slack, traversal_cost, intersection_cost, empty_bonus,
@@ -232,18 +233,20 @@ class KdTree(Accelerator):
         stack_node = thread_rows((rows, self.max_depth + 2), np.int32)
         stack_t = thread_rows((rows, self.max_depth + 2, 2))
         with self._mailboxes_for(action).lend(len(batch.origins)) as (mailbox, base):
-            walk_rays(kdtree_trace_kernel, len(batch.origins), k.lo, k.hi, k.node_split, k.node_link, k.leaf_prims,
-                      self.scene.kind, self.scene.geometry, *batch, any_hit, mailbox, base, stack_node, stack_t, action,
-                      work)
+            walk = kdtree_closest_kernel if action.mode == NEAREST else kdtree_crossings_kernel
+            walk_rays(walk, len(batch.origins), k.lo, k.hi, k.node_records, k.node_records.view(np.int32),
+                      k.leaf_prims, self.scene.kind, self.scene.geometry, *batch, any_hit, mailbox, base, stack_node,
+                      stack_t, action, work)
 
     def _nearest(self, points, limit_d2, out_d2, out_prim):
         """Near side of each plane first (:mod:`.nearest`)."""
         k = self.kd
         rows, depth = numba.config.NUMBA_NUM_THREADS, self.max_depth + 2
         pad = 1e-9 * float(np.abs(k.lo).max() + np.abs(k.hi).max() + (k.hi - k.lo).max())
-        kdtree_nearest_kernel(k.lo, k.hi, k.node_split, k.node_link, k.leaf_prims, self.scene.kind,
-                              self.scene.geometry, pad, points, limit_d2, thread_rows((rows, depth), np.int32),
-                              thread_rows((rows, depth)), thread_rows((rows, depth, 6)), out_d2, out_prim)
+        kdtree_nearest_kernel(k.lo, k.hi, k.node_records, k.node_records.view(np.int32), k.leaf_prims,
+                              self.scene.kind, self.scene.geometry, pad, points, limit_d2,
+                              thread_rows((rows, depth), np.int32), thread_rows((rows, depth)),
+                              thread_rows((rows, depth, 6)), out_d2, out_prim)
 
     @property
     def nbytes(self) -> int:

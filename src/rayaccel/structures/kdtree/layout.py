@@ -2,13 +2,15 @@
 
 Nodes are numbered from the root, 0; the two children of an inner node sit
 side by side (below the plane, then above it), so a node stores one index for
-both. Two arrays of ``n_nodes`` rows:
+both. Each node is one 16-byte record, so that a step of the walk reads one
+cache line: ``node_records`` (n_nodes, 2) float64, whose
 
-* ``node_split`` float64: the split plane's coordinate on the node's axis
-  (unused for a leaf);
-* ``node_link`` (n_nodes, 2) int32: column 0 is, for an inner node, the index
-  of its child below the plane (the child above is that + 1) and, for a leaf,
-  the offset of its first reference in ``leaf_prims``; column 1 is
+* column 0 is the split plane's coordinate on the node's axis (unused for a
+  leaf);
+* column 1 holds two int32 (:attr:`KdTreeArrays.node_link`, the records seen
+  as int32, columns 2 and 3): the first is, for an inner node, the index of
+  its child below the plane (the child above is that + 1) and, for a leaf,
+  the offset of its first reference in ``leaf_prims``; the second is
   ``count << 2 | axis`` with ``axis`` 0, 1, 2 for an inner node (``count`` 0)
   and 3 for a leaf holding ``count`` references (possibly none: empty leaves
   are what makes kd-trees skip empty space).
@@ -16,7 +18,7 @@ both. Two arrays of ``n_nodes`` rows:
 ``leaf_prims`` (n_references,) int32 holds the primitive indices of every leaf
 in turn; a primitive that straddles planes is referenced by every leaf whose
 cell it overlaps. The node cells are not stored: the root cell is the box
-``lo``..``hi`` and every split halves a cell at ``node_split``.
+``lo``..``hi`` and every split halves a cell at the node's plane.
 
 To walk it: clip the ray to the root box, then at an inner node compute the
 distance to the plane and visit the near child, the far one, or both
@@ -40,15 +42,32 @@ LEAF = 3
 class KdTreeArrays(NamedTuple):
     """The arrays a kd-tree traversal kernel reads."""
 
-    lo: np.ndarray          # (3,) float64, root cell
-    hi: np.ndarray          # (3,) float64
-    node_split: np.ndarray  # (n_nodes,) float64
-    node_link: np.ndarray   # (n_nodes, 2) int32
-    leaf_prims: np.ndarray  # (n_references,) int32
+    lo: np.ndarray            # (3,) float64, root cell
+    hi: np.ndarray            # (3,) float64
+    node_records: np.ndarray  # (n_nodes, 2) float64: split, then (link, count << 2 | axis) as two int32
+    leaf_prims: np.ndarray    # (n_references,) int32
+
+    @classmethod
+    def pack(cls, lo, hi, node_split, node_link, leaf_prims) -> KdTreeArrays:
+        """The arrays of a tree given as its planes (n_nodes,) and links (n_nodes, 2) int32."""
+        node_records = np.empty((len(node_split), 2))
+        node_records[:, 0] = node_split
+        node_records.view(np.int32)[:, 2:] = node_link
+        return cls(lo, hi, node_records, leaf_prims)
+
+    @property
+    def node_split(self) -> np.ndarray:
+        """(n_nodes,) float64 view: each node's plane."""
+        return self.node_records[:, 0]
+
+    @property
+    def node_link(self) -> np.ndarray:
+        """(n_nodes, 2) int32 view: each node's child or first reference, and its count and axis."""
+        return self.node_records.view(np.int32)[:, 2:]
 
     @property
     def n_nodes(self) -> int:
-        return len(self.node_split)
+        return len(self.node_records)
 
     @property
     def axis(self) -> np.ndarray:
@@ -64,22 +83,23 @@ class KdTreeArrays(NamedTuple):
 
 
 @kernel
-def node_cells(lo, hi, node_split, node_link):
+def node_cells(lo, hi, node_records):
     """(n_nodes, 6) cell of every node (lo, hi), from the root box and the split planes."""
-    n = node_split.shape[0]
+    n = node_records.shape[0]
+    links = node_records.view(np.int32)
     cells = np.empty((n, 6))
     cells[0, :3] = lo
     cells[0, 3:] = hi
     depth = np.zeros(n, dtype=np.int64)
     for node in range(n):
-        axis = node_link[node, 1] & 3
+        axis = links[node, 3] & 3
         if axis == LEAF:
             continue
-        below = node_link[node, 0]
+        below = links[node, 2]
         cells[below] = cells[node]
         cells[below + 1] = cells[node]
-        cells[below, axis + 3] = node_split[node]
-        cells[below + 1, axis] = node_split[node]
+        cells[below, axis + 3] = node_records[node, 0]
+        cells[below + 1, axis] = node_records[node, 0]
         depth[below] = depth[node] + 1
         depth[below + 1] = depth[node] + 1
     return cells, depth

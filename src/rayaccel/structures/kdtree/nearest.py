@@ -35,10 +35,11 @@ def _cell_distance2(cell, p):
 
 
 @parallel_kernel
-def kdtree_nearest_kernel(lo, hi, node_split, node_link, leaf_prims, kind, geom, pad, points, limit_d2, stack_node,
-                          stack_d2, stack_cell, out_d2, out_prim):
+def kdtree_nearest_kernel(lo, hi, node_records, node_links, leaf_prims, kind, geom, pad, points, limit_d2,
+                          stack_node, stack_d2, stack_cell, out_d2, out_prim):
     """For each point, the closest primitive within ``sqrt(limit_d2[i])`` (``out_d2``, ``out_prim``);
-    stacks as deep as the tree + 2, ``stack_cell`` (threads, depth, 6)."""
+    ``node_links`` is ``node_records`` seen as int32; stacks as deep as the tree + 2,
+    ``stack_cell`` (threads, depth, 6)."""
     for i in prange(points.shape[0]):
         tid = thread_id()
         p = (points[i, 0], points[i, 1], points[i, 2])
@@ -50,16 +51,16 @@ def kdtree_nearest_kernel(lo, hi, node_split, node_link, leaf_prims, kind, geom,
             node = -1
         sp = 0
         while node >= 0:
-            link = node_link[node, 1]
+            link = node_links[node, 3]
             axis = link & 3
             if axis == 3:
-                first = node_link[node, 0]
+                first = node_links[node, 2]
                 best_d2, best_prim = nearest_in_refs(kind, geom, leaf_prims, first, first + (link >> 2), False, p[0],
                                                      p[1], p[2], best_d2, best_prim)
                 node = -1
             else:
-                split = node_split[node]
-                below = node_link[node, 0]
+                split = node_records[node, 0]
+                below = node_links[node, 2]
                 if p[axis] < split:
                     node, far = below, below + 1
                     far_cell = _with(cell, axis, split - pad)

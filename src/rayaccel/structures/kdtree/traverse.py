@@ -17,7 +17,8 @@ stack is skipped once the candidate lies before its entry
 primitives in the plane sit on one side only; so the walk does not simply stop
 at the first leaf whose exit lies beyond the best hit, it lets the stack run
 out, which costs one comparison per pending cell.
-Stacks are preallocated per thread, as deep as the tree.
+Stacks are preallocated per thread, as deep as the tree. A node is one 16-byte
+record (:mod:`.layout`), the step's plane and links in one cache line.
 """
 
 from __future__ import annotations
@@ -28,11 +29,11 @@ from ..._jit import chunk_kernel, inline_kernel
 from ...geometry.box import clip_to_box
 from ...geometry.primitive import ray_setup
 from ...rays import ray_limit, result_row
-from ..actions import finish_ray, intersect_references
+from ..actions import NEAREST, finish_ray_in_mode, intersect_references
 from ..base import EXIT_MARGIN, settled_before
 from .layout import LEAF
 
-__all__ = ["kdtree_trace_kernel"]
+__all__ = ["kdtree_closest_kernel", "kdtree_crossings_kernel"]
 
 
 @inline_kernel
@@ -40,13 +41,13 @@ def _margin(t):
     return EXIT_MARGIN * abs(t)
 
 
-@chunk_kernel
-def kdtree_trace_kernel(ray_first, ray_end, tid, lo, hi, node_split, node_link, leaf_prims, kind, geom, origins,
-                        directions, t_min, t_max, hit_slot, any_hit, mailbox, ray_id_base, stack_node, stack_t, action,
-                        work):
+@inline_kernel
+def _walk(ray_first, ray_end, tid, lo, hi, node_records, node_links, leaf_prims, kind, geom, origins, directions,
+          t_min, t_max, hit_slot, any_hit, mailbox, ray_id_base, stack_node, stack_t, mode, action, work):
     """Trace rays ``ray_first`` to ``ray_end - 1`` (one chunk of :func:`rayaccel._jit.on_threads`), their
     stacks in row ``tid``; ``stack_node`` (threads, depth) int32 and ``stack_t`` (threads, depth, 2);
-    ``mailbox`` as in the uniform grid (empty for the closest hit, which needs none)."""
+    ``node_links`` is ``node_records`` seen as int32; ``mailbox`` as in the uniform grid (empty for
+    the closest hit, which needs none)."""
     count_work = work.shape[0] > 0
     for i in range(ray_first, ray_end):
         row = result_row(hit_slot, i)
@@ -55,7 +56,7 @@ def kdtree_trace_kernel(ray_first, ray_end, tid, lo, hi, node_split, node_link, 
         d = (directions[i, 0], directions[i, 1], directions[i, 2])
         t0, t1 = clip_to_box(lo, hi, o[0], o[1], o[2], d[0], d[1], d[2], ray_t_min, ray_t_max)
         if t0 > t1:
-            finish_ray(action, row, np.inf, -1, 0.0, 0.0)
+            finish_ray_in_mode(mode, action, row, np.inf, -1, 0.0, 0.0)
             continue
         inv = (1.0 / d[0], 1.0 / d[1], 1.0 / d[2])
         ray = ray_setup(o[0], o[1], o[2], d[0], d[1], d[2])
@@ -70,11 +71,11 @@ def kdtree_trace_kernel(ray_first, ray_end, tid, lo, hi, node_split, node_link, 
         sp = 0
         while node >= 0:
             n_nodes += 1
-            word = node_link[node, 1]
+            word = node_links[node, 3]
             axis = word & 3
             if axis != LEAF:
-                split = node_split[node]
-                below = node_link[node, 0]
+                split = node_records[node, 0]
+                below = node_links[node, 2]
                 oa = o[axis]
                 da = d[axis]
                 if da == 0.0:
@@ -102,9 +103,9 @@ def kdtree_trace_kernel(ray_first, ray_end, tid, lo, hi, node_split, node_link, 
                     t1 = t_plane
                 continue
             n_leaves += 1
-            first = node_link[node, 0]
+            first = node_links[node, 2]
             best_t, best_prim, best_u, best_v, n_tests, _ = intersect_references(
-                action, row, first, first + (word >> 2), leaf_prims, mailbox, tid, ray_id_base + i, kind, geom,
+                mode, action, row, first, first + (word >> 2), leaf_prims, mailbox, tid, ray_id_base + i, kind, geom,
                 ray, ray_t_min, best_t, best_prim, best_u, best_v, n_tests, 0, any_hit)
             if any_hit and best_prim >= 0:
                 break
@@ -119,8 +120,27 @@ def kdtree_trace_kernel(ray_first, ray_end, tid, lo, hi, node_split, node_link, 
                     t0 = stack_t[tid, sp, 0]
                     t1 = stack_t[tid, sp, 1]
                     break
-        finish_ray(action, row, best_t, best_prim, best_u, best_v)
+        finish_ray_in_mode(mode, action, row, best_t, best_prim, best_u, best_v)
         if count_work:
             work[row, 0] = n_nodes
             work[row, 1] = n_tests
             work[row, 3] = n_leaves
+
+
+@chunk_kernel
+def kdtree_closest_kernel(ray_first, ray_end, tid, lo, hi, node_records, node_links, leaf_prims, kind, geom, origins,
+                          directions, t_min, t_max, hit_slot, any_hit, mailbox, ray_id_base, stack_node, stack_t,
+                          action, work):
+    """The closest-hit and any-hit walk (an action of mode ``NEAREST``), the other modes' code
+    pruned before it is compiled (:func:`..actions.visit_prim_in_mode`)."""
+    _walk(ray_first, ray_end, tid, lo, hi, node_records, node_links, leaf_prims, kind, geom, origins, directions,
+          t_min, t_max, hit_slot, any_hit, mailbox, ray_id_base, stack_node, stack_t, NEAREST, action, work)
+
+
+@chunk_kernel
+def kdtree_crossings_kernel(ray_first, ray_end, tid, lo, hi, node_records, node_links, leaf_prims, kind, geom,
+                            origins, directions, t_min, t_max, hit_slot, any_hit, mailbox, ray_id_base, stack_node,
+                            stack_t, action, work):
+    """The walk for the other actions (counting, listing, winding), compiled at their first use."""
+    _walk(ray_first, ray_end, tid, lo, hi, node_records, node_links, leaf_prims, kind, geom, origins, directions,
+          t_min, t_max, hit_slot, any_hit, mailbox, ray_id_base, stack_node, stack_t, action.mode, action, work)
