@@ -284,7 +284,7 @@ def _load_kdtree(accel, meta, arrays):
     c.single_parents("kd-tree", np.concatenate((parents, parents)), np.concatenate((below, below + 1)), n)
     c.leaf_ranges("kd-tree", link[~inner, 0], count[~inner], len(leaf_prims))
     accel.kd = KdTreeArrays.pack(lo, hi, split, link, leaf_prims)
-    accel._derive_cells()
+    accel._derive_from_tree()
 
 
 # --- octree -------------------------------------------------------------------------------

@@ -270,12 +270,14 @@ def finish_misses_in_mode(mode, action, hit_slot, first, end):
 
 
 @inline_kernel
-def intersect_references(mode, action, row, first, end, refs, mailbox, tid, stamp, kind, geom, ray, t_min, best_t,
-                         best_prim, best_u, best_v, n_tests, n_skips, any_hit):
+def intersect_references(mode, action, row, first, end, refs, mailbox, tid, stamp, kind, geom, in_leaf_order, ray,
+                         t_min, best_t, best_prim, best_u, best_v, n_tests, n_skips, any_hit):
     """Visit the primitives ``refs[first:end]`` (a cell's or a leaf's references) with the
     action, in ``mode`` (its own, or a constant that prunes the others, see
     :func:`visit_prim_in_mode`), skipping those already stamped in the mailbox, when there is one (an empty
-    array otherwise), and stamping the others; returns the walk's ``(best_t, best_prim,
+    array otherwise), and stamping the others; with ``in_leaf_order`` the geometry is stored in
+    reference order (row ``k`` is primitive ``refs[k]``), otherwise row ``refs[k]`` of the scene's
+    is read. Returns the walk's ``(best_t, best_prim,
     best_u, best_v)`` and the counters ``(tests, skips)``, updated."""
     for k in range(first, end):
         prim = refs[k]
@@ -285,8 +287,9 @@ def intersect_references(mode, action, row, first, end, refs, mailbox, tid, stam
                 continue
             mailbox[tid, prim] = stamp
         n_tests += 1
-        best_t, best_prim, best_u, best_v, stop = visit_prim_in_mode(mode, action, row, kind, geom, prim, prim, ray,
-                                                                     t_min, best_t, best_prim, best_u, best_v, any_hit)
+        best_t, best_prim, best_u, best_v, stop = visit_prim_in_mode(mode, action, row, kind, geom,
+                                                                     k if in_leaf_order else prim, prim, ray, t_min,
+                                                                     best_t, best_prim, best_u, best_v, any_hit)
         if stop:
             break
     return best_t, best_prim, best_u, best_v, n_tests, n_skips

@@ -98,7 +98,7 @@ def grid_trace_kernel(ray_first, ray_end, tid, grid_lo, grid_hi, res, cell_size,
             flat = cx + nx * (cy + ny * cz)
             best_t, best_prim, best_u, best_v, n_tests, n_skips = intersect_references(
                 action.mode, action, row, cell_first[flat], cell_first[flat + 1], cell_prims, mailbox, tid, stamp, kind,
-                geom, ray, ray_t_min, best_t, best_prim, best_u, best_v, n_tests, n_skips, any_hit)
+                geom, False, ray, ray_t_min, best_t, best_prim, best_u, best_v, n_tests, n_skips, any_hit)
             if any_hit and best_prim >= 0:
                 break
             cell_exit = min(next_x, next_y, next_z)

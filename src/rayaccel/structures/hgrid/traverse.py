@@ -91,7 +91,7 @@ def hgrid_trace_kernel(ray_first, ray_end, tid, lo, hi, grid_lo, grid_res, grid_
                 continue
             best_t, best_prim, best_u, best_v, n_tests, n_skips = intersect_references(
                 action.mode, action, row, cell_first[cell], cell_first[cell + 1], cell_prims, mailbox, tid, stamp, kind,
-                geom, ray, ray_t_min, best_t, best_prim, best_u, best_v, n_tests, n_skips, any_hit)
+                geom, False, ray, ray_t_min, best_t, best_prim, best_u, best_v, n_tests, n_skips, any_hit)
             if (any_hit and best_prim >= 0) or (best_prim >= 0 and best_t <= cell_exit):
                 break
             done = False

@@ -38,7 +38,7 @@ def _cell_distance2(cell, p):
 def kdtree_nearest_kernel(lo, hi, node_records, node_links, leaf_prims, kind, geom, pad, points, limit_d2,
                           stack_node, stack_d2, stack_cell, out_d2, out_prim):
     """For each point, the closest primitive within ``sqrt(limit_d2[i])`` (``out_d2``, ``out_prim``);
-    ``node_links`` is ``node_records`` seen as int32; stacks as deep as the tree + 2,
+    ``node_links`` is ``node_records`` seen as int32, ``geom`` in reference order; stacks as deep as the tree + 2,
     ``stack_cell`` (threads, depth, 6)."""
     for i in prange(points.shape[0]):
         tid = thread_id()
@@ -55,7 +55,7 @@ def kdtree_nearest_kernel(lo, hi, node_records, node_links, leaf_prims, kind, ge
             axis = link & 3
             if axis == 3:
                 first = node_links[node, 2]
-                best_d2, best_prim = nearest_in_refs(kind, geom, leaf_prims, first, first + (link >> 2), False, p[0],
+                best_d2, best_prim = nearest_in_refs(kind, geom, leaf_prims, first, first + (link >> 2), True, p[0],
                                                      p[1], p[2], best_d2, best_prim)
                 node = -1
             else:

@@ -118,7 +118,7 @@ def octree_trace_kernel(ray_first, ray_end, tid, lo, hi, node_center, node_link,
                 first = node_link[node, 0]
                 best_t, best_prim, best_u, best_v, n_tests, _ = intersect_references(
                     action.mode, action, row, first, first + count, leaf_prims, mailbox, tid, ray_id_base + i, kind,
-                    geom, ray, ray_t_min, best_t, best_prim, best_u, best_v, n_tests, 0, any_hit)
+                    geom, False, ray, ray_t_min, best_t, best_prim, best_u, best_v, n_tests, 0, any_hit)
                 if (any_hit and best_prim >= 0) or settled_before(best_prim, best_t, t1):
                     break
                 node = -1
