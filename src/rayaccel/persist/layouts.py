@@ -257,6 +257,7 @@ def _load_hybrid(accel, meta, arrays):
     accel.hybrid = GridBvhArrays(lo, hi, res, size, first, prims, root, node_box, node_first, node_count)
     accel.bvh_depth = int(depth.max()) if n_nodes else 0
     _mailbox(accel)
+    accel._derive_from_layout()
 
 
 # --- kdtree -------------------------------------------------------------------------------

@@ -42,7 +42,7 @@ def _cell_distance2(glo, gsize, x, y, z, pad, px, py, pz):
 
 @kernel
 def _nested_grids(first_grid, grid_lo, grid_res, grid_cell_size, grid_cell_base, cell_child, cell_first, cell_prims,
-                  kind, geom, pad, px, py, pz, best_d2, best_prim, grid_stack, tid):
+                  kind, geom, in_leaf_order, pad, px, py, pz, best_d2, best_prim, grid_stack, tid):
     """Scan the nested grid ``first_grid`` and the grids nested in it, skipping far cells."""
     grid_stack[tid, 0] = first_grid
     sp = 1
@@ -61,7 +61,7 @@ def _nested_grids(first_grid, grid_lo, grid_res, grid_cell_size, grid_cell_base,
                         sp += 1
                     else:
                         best_d2, best_prim = nearest_in_refs(kind, geom, cell_prims, cell_first[cell],
-                                                             cell_first[cell + 1], False, px, py, pz, best_d2,
+                                                             cell_first[cell + 1], in_leaf_order, px, py, pz, best_d2,
                                                              best_prim)
     return best_d2, best_prim
 
@@ -87,8 +87,8 @@ def _shell_bound2(glo, gsize, res, c, k, px, py, pz):
 
 @kernel
 def _grid_point(lo, res, cell_size, cell_first, cell_prims, cell_root, node_box, node_first, node_count, cell_child,
-                grid_lo, grid_res, grid_cell_size, grid_cell_base, kind, geom, pad, px, py, pz, best_d2, stack_node,
-                stack_d2, grid_stack, tid):
+                grid_lo, grid_res, grid_cell_size, grid_cell_base, kind, geom, in_leaf_order, pad, px, py, pz, best_d2,
+                stack_node, stack_d2, grid_stack, tid):
     """One point's shell search: its closest primitive ``(d2, prim)`` within ``sqrt(best_d2)``."""
     nx, ny, nz = res[0], res[1], res[2]
     best_prim = -1
@@ -118,17 +118,17 @@ def _grid_point(lo, res, cell_size, cell_first, cell_prims, cell_root, node_box,
                         continue
                     cell = x + nx * (y + ny * z)
                     if cell_root.shape[0] > 0 and cell_root[cell] >= 0:
-                        best_d2, best_prim = bvh_nearest(node_box, node_first, node_count, cell_prims, False,
+                        best_d2, best_prim = bvh_nearest(node_box, node_first, node_count, cell_prims, in_leaf_order,
                                                          cell_root[cell], kind, geom, px, py, pz, best_d2,
                                                          best_prim, stack_node, stack_d2, tid)
                     elif cell_child.shape[0] > 0 and cell_child[cell] >= 0:
                         best_d2, best_prim = _nested_grids(cell_child[cell], grid_lo, grid_res, grid_cell_size,
                                                            grid_cell_base, cell_child, cell_first, cell_prims,
-                                                           kind, geom, pad, px, py, pz, best_d2, best_prim,
-                                                           grid_stack, tid)
+                                                           kind, geom, in_leaf_order, pad, px, py, pz, best_d2,
+                                                           best_prim, grid_stack, tid)
                     else:
                         best_d2, best_prim = nearest_in_refs(kind, geom, cell_prims, cell_first[cell],
-                                                             cell_first[cell + 1], False, px, py, pz, best_d2,
+                                                             cell_first[cell + 1], in_leaf_order, px, py, pz, best_d2,
                                                              best_prim)
         k += 1
         if k > max(c[0], nx - 1 - c[0], c[1], ny - 1 - c[1], c[2], nz - 1 - c[2]):
@@ -138,20 +138,23 @@ def _grid_point(lo, res, cell_size, cell_first, cell_prims, cell_root, node_box,
 
 @parallel_kernel
 def grid_nearest_kernel(lo, res, cell_size, cell_first, cell_prims, cell_root, node_box, node_first, node_count,
-                        cell_child, grid_lo, grid_res, grid_cell_size, grid_cell_base, kind, geom, pad, points,
-                        limit_d2, stack_node, stack_d2, grid_stack, out_d2, out_prim):
-    """For each point, the closest primitive within ``sqrt(limit_d2[i])`` (``out_d2``, ``out_prim``)."""
+                        cell_child, grid_lo, grid_res, grid_cell_size, grid_cell_base, kind, geom, in_leaf_order, pad,
+                        points, limit_d2, stack_node, stack_d2, grid_stack, out_d2, out_prim):
+    """For each point, the closest primitive within ``sqrt(limit_d2[i])`` (``out_d2``, ``out_prim``);
+    ``geom`` in the order of ``cell_prims`` when ``in_leaf_order``, else the scene's."""
     for i in prange(points.shape[0]):
         out_d2[i], out_prim[i] = _grid_point(lo, res, cell_size, cell_first, cell_prims, cell_root, node_box,
                                              node_first, node_count, cell_child, grid_lo, grid_res, grid_cell_size,
-                                             grid_cell_base, kind, geom, pad, points[i, 0], points[i, 1],
-                                             points[i, 2], limit_d2[i], stack_node, stack_d2, grid_stack, thread_id())
+                                             grid_cell_base, kind, geom, in_leaf_order, pad, points[i, 0],
+                                             points[i, 1], points[i, 2], limit_d2[i], stack_node, stack_d2, grid_stack,
+                                             thread_id())
 
 def grid_nearest(lo, hi, res, cell_size, cell_first, cell_prims, kind, geom, points, limit_d2, out_d2, out_prim, *,
-                 cell_root=None, forest=None, bvh_depth=0, nested=None) -> None:
+                 cell_root=None, forest=None, bvh_depth=0, nested=None, in_leaf_order=False) -> None:
     """Run :func:`grid_nearest_kernel`; ``cell_root`` and ``forest`` (node_box, node_first, node_count)
     for the hybrid's cell BVHs, ``nested`` (cell_child, grid_lo, grid_res, grid_cell_size,
-    grid_cell_base) for the hierarchical grid's nested grids."""
+    grid_cell_base) for the hierarchical grid's nested grids, ``in_leaf_order`` when ``geom`` is
+    in the order of ``cell_prims``."""
     rows = numba.config.NUMBA_NUM_THREADS
     if cell_root is None:
         cell_root = np.zeros(0, dtype=np.int32)
@@ -160,7 +163,7 @@ def grid_nearest(lo, hi, res, cell_size, cell_first, cell_prims, kind, geom, poi
         nested = (np.zeros(0, dtype=np.int32), np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64), np.zeros((0, 3)),
                   np.zeros(0, dtype=np.int64))
     pad = 1e-9 * float(np.abs(lo).max() + np.abs(hi).max() + (hi - lo).max())
-    grid_nearest_kernel(lo, res, cell_size, cell_first, cell_prims, cell_root, *forest, *nested, kind, geom, pad,
-                        points, limit_d2, thread_rows((rows, bvh_depth + 2), np.int32),
+    grid_nearest_kernel(lo, res, cell_size, cell_first, cell_prims, cell_root, *forest, *nested, kind, geom,
+                        in_leaf_order, pad, points, limit_d2, thread_rows((rows, bvh_depth + 2), np.int32),
                         thread_rows((rows, bvh_depth + 2)), thread_rows((rows, len(nested[1]) + 1), np.int64),
                         out_d2, out_prim)

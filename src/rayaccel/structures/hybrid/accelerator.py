@@ -9,6 +9,7 @@ import numpy as np
 
 from ..._jit import thread_rows
 from ..._validate import check_number
+from ...geometry.gather import layout_nbytes
 from ...stats import box_area, surface_area_stats
 from ..base import Accelerator, walk_rays
 from ..grid.mailbox import MailboxPool
@@ -68,6 +69,13 @@ class GridBvh(Accelerator):
             options["bins"], options["traversal_cost"], options["intersection_cost"], insert == "exact", pad)
         self.build_seconds = time.perf_counter() - start
         self.mailboxes = MailboxPool(len(scene), enabled=options["mailbox"])
+        self._derive_from_layout()
+
+    def _derive_from_layout(self) -> None:
+        """What the queries read besides the built (or loaded) arrays: the primitives in the order
+        of ``cell_prims`` (:meth:`~rayaccel.scene.TriangleMesh.gather`), read one after the other
+        in a cell or a leaf."""
+        self.geometry = self.scene.gather(self.hybrid.cell_prims)
 
     def _trace(self, batch, any_hit, action, work):
         h = self.hybrid
@@ -77,19 +85,20 @@ class GridBvh(Accelerator):
         with self._mailboxes_for(action).lend(len(batch.origins)) as (mailbox, base):
             walk_rays(grid_bvh_trace_kernel, len(batch.origins), h.lo, h.hi, h.res, h.cell_size, h.cell_first,
                       h.cell_prims, h.cell_root, h.node_box, h.node_first, h.node_count, self.scene.kind,
-                      self.scene.geometry, *batch, any_hit, mailbox, base, stack_node, stack_t, action, work)
+                      self.geometry, *batch, any_hit, mailbox, base, stack_node, stack_t, action, work)
 
     def _nearest(self, points, limit_d2, out_d2, out_prim):
         """Grid cells searched outward in shells, a dense cell's BVH walked by distance (:mod:`..grid.nearest`)."""
         h = self.hybrid
-        grid_nearest(h.lo, h.hi, h.res, h.cell_size, h.cell_first, h.cell_prims, self.scene.kind, self.scene.geometry,
+        grid_nearest(h.lo, h.hi, h.res, h.cell_size, h.cell_first, h.cell_prims, self.scene.kind, self.geometry,
                      points, limit_d2, out_d2, out_prim, cell_root=h.cell_root,
-                     forest=(h.node_box, h.node_first, h.node_count), bvh_depth=self.bvh_depth)
+                     forest=(h.node_box, h.node_first, h.node_count), bvh_depth=self.bvh_depth, in_leaf_order=True)
 
     @property
     def nbytes(self) -> int:
-        """Bytes of the arrays that queries read: the structure, the primitives and mailboxes."""
-        return int(self.hybrid.nbytes + self.scene.geometry.nbytes + self.mailboxes.nbytes)
+        """Bytes of the arrays that queries read: the structure, the primitives in reference order and
+        the mailboxes."""
+        return int(self.hybrid.nbytes + layout_nbytes(self.geometry) + self.mailboxes.nbytes)
 
     def _structure_stats(self) -> dict:
         h = self.hybrid

@@ -68,7 +68,7 @@ def grid_bvh_trace_kernel(ray_first, ray_end, tid, lo, hi, res, cell_size, cell_
                 n_leaves += 1
                 best_t, best_prim, best_u, best_v, n_tests, n_skips = intersect_references(
                     action.mode, action, row, cell_first[cell], cell_first[cell + 1], cell_prims, mailbox, tid, stamp,
-                    kind, geom, False, ray, ray_t_min, best_t, best_prim, best_u, best_v, n_tests, n_skips, any_hit)
+                    kind, geom, True, ray, ray_t_min, best_t, best_prim, best_u, best_v, n_tests, n_skips, any_hit)
             else:
                 node = root
                 sp = 0
@@ -83,7 +83,7 @@ def grid_bvh_trace_kernel(ray_first, ray_end, tid, lo, hi, res, cell_size, cell_
                         first = node_first[node]
                         best_t, best_prim, best_u, best_v, n_tests, n_skips = intersect_references(
                             action.mode, action, row, first, first + count, cell_prims, mailbox, tid, stamp, kind,
-                            geom, False, ray, ray_t_min, best_t, best_prim, best_u, best_v, n_tests, n_skips, any_hit)
+                            geom, True, ray, ray_t_min, best_t, best_prim, best_u, best_v, n_tests, n_skips, any_hit)
                         if any_hit and best_prim >= 0:
                             break
                         node = -1
