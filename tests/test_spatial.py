@@ -52,6 +52,30 @@ def test_agrees_with_brute_force(scene_name, method, options, request):
         _check(reference, accel, origins, directions)
 
 
+@pytest.mark.parametrize("method", ["kdtree", "grid-bvh"])
+@pytest.mark.parametrize(("scene_name", "layout"),
+                         [("small_dragon", "rows"), ("bunny", "indexed"), ("spheres", "rows")])
+def test_references_read_their_primitives_in_reference_order(method, scene_name, layout, request):
+    """The kd-tree and the grid-BVH hybrid test a leaf's or a cell's primitives from a copy laid
+    out in the order of their references, in the smallest exact layout (float32 rows for the
+    dragon's PLY, vertex indices for the bunny's OBJ, the sphere rows as they are), and count
+    that copy instead of the scene's float64 rows among the bytes a query reads."""
+    scene = request.getfixturevalue(scene_name)
+    accel = ra.build(scene, method)
+    refs = accel.kd.leaf_prims if method == "kdtree" else accel.hybrid.cell_prims
+    expected = scene.geometry[refs]
+    if layout == "rows":
+        corners = np.asarray(accel.geometry, dtype=np.float64)
+        assert accel.geometry.dtype == (np.float64 if scene_name == "spheres" else np.float32)
+    else:
+        corner_ids, leaf_vertices = accel.geometry
+        corners = leaf_vertices[corner_ids].reshape(-1, 9)
+    np.testing.assert_array_equal(corners, expected)
+    structure = accel.kd.nbytes if method == "kdtree" else accel.hybrid.nbytes + accel.mailboxes.nbytes
+    geometry_bytes = sum(a.nbytes for a in accel.geometry) if layout == "indexed" else accel.geometry.nbytes
+    assert accel.stats()["bytes"] == structure + geometry_bytes
+
+
 @pytest.mark.parametrize("method", SPATIAL)
 def test_bunny_and_rays_through_vertices_edges_and_surfaces(bunny, small_dragon, method):
     reference = ra.build(bunny, "none")
