@@ -44,6 +44,42 @@ def _margin(t):
 
 
 @inline_kernel
+def cross_split(node_records, node_links, node, axis, oa, da, inv_a, t0, t1):
+    """One step at inner ``node``, whose plane lies on ``axis``, of a ray with origin ``oa``,
+    direction ``da`` and reciprocal ``inv_a`` on that axis, inside ``[t0, t1]``: ``(next, t1,
+    pushed, push_t0, push_t1)``, the child to visit next with the end of its interval (its
+    start stays ``t0``), and the child to push with its interval, ``pushed = -1`` when none."""
+    split = node_records[node, 0]
+    below = node_links[node, 2]
+    if da == 0.0:
+        near = below if oa < split else below + 1
+        if oa == split:
+            return near, t1, below, t0, t1
+        return near, t1, -1, t0, t1
+    near = below if da > 0.0 else below + 1
+    t_plane = (split - oa) * inv_a
+    if t_plane > t1 + _margin(t1):
+        return near, t1, -1, t0, t1
+    if t_plane < t0 - _margin(t0):
+        return 2 * below + 1 - near, t1, -1, t0, t1
+    t_plane = min(max(t_plane, t0), t1)
+    return near, t_plane, 2 * below + 1 - near, t_plane, t1
+
+
+@inline_kernel
+def pop_unsettled(stack_node, stack_t, row, sp, best_prim, best_t, t0, t1):
+    """The next cell to visit from the stack of ``row`` (``sp`` entries), skipping those that start
+    after the best hit: ``(node, t0, t1, sp)``, ``node = -1`` when none is left. Once the best hit
+    lies before a leaf's exit, every cell pushed by a plane crossing starts after it; only a cell
+    pushed for a ray lying in a split plane (same interval as its sibling) can still be entered."""
+    while sp > 0:
+        sp -= 1
+        if best_prim < 0 or not settled_before(best_prim, best_t, stack_t[row, sp, 0]):
+            return stack_node[row, sp], stack_t[row, sp, 0], stack_t[row, sp, 1], sp
+    return -1, t0, t1, sp
+
+
+@inline_kernel
 def _walk(ray_first, ray_end, tid, lo, hi, node_records, node_links, leaf_prims, kind, geom, origins, directions,
           t_min, t_max, hit_slot, any_hit, mailbox, ray_id_base, stack_node, stack_t, inv_dir, mode, action, work):
     """Trace rays ``ray_first`` to ``ray_end - 1`` (one chunk of :func:`rayaccel._jit.on_threads`), their
@@ -82,33 +118,14 @@ def _walk(ray_first, ray_end, tid, lo, hi, node_records, node_links, leaf_prims,
             word = node_links[node, 3]
             axis = word & 3
             if axis != LEAF:
-                split = node_records[node, 0]
-                below = node_links[node, 2]
-                oa = origins[i, axis]
-                da = directions[i, axis]
-                if da == 0.0:
-                    near = below if oa < split else below + 1
-                    if oa == split:
-                        stack_node[tid, sp] = below
-                        stack_t[tid, sp, 0] = t0
-                        stack_t[tid, sp, 1] = t1
-                        sp += 1
-                    node = near
-                    continue
-                near = below if da > 0.0 else below + 1
-                t_plane = (split - oa) * inv_dir[row_of_thread, axis]
-                if t_plane > t1 + _margin(t1):
-                    node = near
-                elif t_plane < t0 - _margin(t0):
-                    node = 2 * below + 1 - near
-                else:
-                    t_plane = min(max(t_plane, t0), t1)
-                    stack_node[tid, sp] = 2 * below + 1 - near
-                    stack_t[tid, sp, 0] = t_plane
-                    stack_t[tid, sp, 1] = t1
+                node, t1, pushed, push_t0, push_t1 = cross_split(node_records, node_links, node, axis,
+                                                                 origins[i, axis], directions[i, axis],
+                                                                 inv_dir[row_of_thread, axis], t0, t1)
+                if pushed >= 0:
+                    stack_node[tid, sp] = pushed
+                    stack_t[tid, sp, 0] = push_t0
+                    stack_t[tid, sp, 1] = push_t1
                     sp += 1
-                    node = near
-                    t1 = t_plane
                 continue
             n_leaves += 1
             first = node_links[node, 2]
@@ -117,17 +134,7 @@ def _walk(ray_first, ray_end, tid, lo, hi, node_records, node_links, leaf_prims,
                 geom, True, ray, ray_t_min, best_t, best_prim, best_u, best_v, n_tests, 0, any_hit)
             if any_hit and best_prim >= 0:
                 break
-            # Once the best hit lies before this leaf's exit, every cell pushed by a plane
-            # crossing starts after it and is skipped below; only a cell pushed for a ray
-            # lying in a split plane (same interval as its sibling) can still be entered.
-            node = -1
-            while sp > 0:
-                sp -= 1
-                if best_prim < 0 or not settled_before(best_prim, best_t, stack_t[tid, sp, 0]):
-                    node = stack_node[tid, sp]
-                    t0 = stack_t[tid, sp, 0]
-                    t1 = stack_t[tid, sp, 1]
-                    break
+            node, t0, t1, sp = pop_unsettled(stack_node, stack_t, tid, sp, best_prim, best_t, t0, t1)
         finish_ray_in_mode(mode, action, row, best_t, best_prim, best_u, best_v)
         if count_work:
             work[row, 0] = n_nodes
