@@ -44,9 +44,9 @@ def _margin(t):
 
 
 @inline_kernel
-def cross_split(node_records, node_links, node, axis, oa, da, inv_a, t0, t1):
-    """One step at inner ``node``, whose plane lies on ``axis``, of a ray with origin ``oa``,
-    direction ``da`` and reciprocal ``inv_a`` on that axis, inside ``[t0, t1]``: ``(next, t1,
+def _cross_split(node_records, node_links, node, oa, da, inv_a, t0, t1):
+    """One step at inner ``node`` of a ray with origin ``oa``, direction ``da`` and reciprocal
+    ``inv_a`` on the node's axis, inside ``[t0, t1]``: ``(next, t1,
     pushed, push_t0, push_t1)``, the child to visit next with the end of its interval (its
     start stays ``t0``), and the child to push with its interval, ``pushed = -1`` when none."""
     split = node_records[node, 0]
@@ -67,7 +67,7 @@ def cross_split(node_records, node_links, node, axis, oa, da, inv_a, t0, t1):
 
 
 @inline_kernel
-def pop_unsettled(stack_node, stack_t, row, sp, best_prim, best_t, t0, t1):
+def _pop_unsettled(stack_node, stack_t, row, sp, best_prim, best_t, t0, t1):
     """The next cell to visit from the stack of ``row`` (``sp`` entries), skipping those that start
     after the best hit: ``(node, t0, t1, sp)``, ``node = -1`` when none is left. Once the best hit
     lies before a leaf's exit, every cell pushed by a plane crossing starts after it; only a cell
@@ -118,9 +118,9 @@ def _walk(ray_first, ray_end, tid, lo, hi, node_records, node_links, leaf_prims,
             word = node_links[node, 3]
             axis = word & 3
             if axis != LEAF:
-                node, t1, pushed, push_t0, push_t1 = cross_split(node_records, node_links, node, axis,
-                                                                 origins[i, axis], directions[i, axis],
-                                                                 inv_dir[row_of_thread, axis], t0, t1)
+                node, t1, pushed, push_t0, push_t1 = _cross_split(node_records, node_links, node, origins[i, axis],
+                                                                  directions[i, axis], inv_dir[row_of_thread, axis],
+                                                                  t0, t1)
                 if pushed >= 0:
                     stack_node[tid, sp] = pushed
                     stack_t[tid, sp, 0] = push_t0
@@ -134,7 +134,7 @@ def _walk(ray_first, ray_end, tid, lo, hi, node_records, node_links, leaf_prims,
                 geom, True, ray, ray_t_min, best_t, best_prim, best_u, best_v, n_tests, 0, any_hit)
             if any_hit and best_prim >= 0:
                 break
-            node, t0, t1, sp = pop_unsettled(stack_node, stack_t, tid, sp, best_prim, best_t, t0, t1)
+            node, t0, t1, sp = _pop_unsettled(stack_node, stack_t, tid, sp, best_prim, best_t, t0, t1)
         finish_ray_in_mode(mode, action, row, best_t, best_prim, best_u, best_v)
         if count_work:
             work[row, 0] = n_nodes
