@@ -273,12 +273,12 @@ def finish_misses_in_mode(mode, action, hit_slot, first, end):
 def intersect_references(mode, action, row, first, end, refs, mailbox, tid, stamp, kind, geom, in_leaf_order, ray,
                          t_min, best_t, best_prim, best_u, best_v, n_tests, n_skips, any_hit):
     """Visit the primitives ``refs[first:end]`` (a cell's or a leaf's references) with the
-    action, in ``mode`` (its own, or a constant that prunes the others, see
-    :func:`visit_prim_in_mode`), skipping those already stamped in the mailbox, when there is one (an empty
-    array otherwise), and stamping the others; with ``in_leaf_order`` the geometry is stored in
-    reference order (row ``k`` is primitive ``refs[k]``), otherwise row ``refs[k]`` of the scene's
-    is read. Returns the walk's ``(best_t, best_prim,
-    best_u, best_v)`` and the counters ``(tests, skips)``, updated."""
+    action, in ``mode`` (the action's own, or a constant that prunes the others' code, see
+    :func:`visit_prim_in_mode`), skipping those already stamped in the mailbox, when there is
+    one (an empty array otherwise), and stamping the others. With ``in_leaf_order`` the
+    geometry is stored in reference order (row ``k`` is primitive ``refs[k]``), otherwise it
+    is the scene's, row ``refs[k]``. Returns the walk's ``(best_t, best_prim, best_u,
+    best_v)`` and the counters ``(tests, skips)``, updated."""
     for k in range(first, end):
         prim = refs[k]
         if mailbox.shape[0] > 0:
