@@ -38,8 +38,8 @@ def _cell_distance2(cell, p):
 def kdtree_nearest_kernel(lo, hi, node_records, node_links, leaf_prims, kind, geom, pad, points, limit_d2,
                           stack_node, stack_d2, stack_cell, out_d2, out_prim):
     """For each point, the closest primitive within ``sqrt(limit_d2[i])`` (``out_d2``, ``out_prim``);
-    ``node_links`` is ``node_records`` seen as int32, ``geom`` in reference order; stacks as deep as the tree + 2,
-    ``stack_cell`` (threads, depth, 6)."""
+    ``node_links`` is ``node_records`` seen as int32, ``geom`` in reference order; stacks as
+    deep as the tree + 2, ``stack_cell`` (threads, depth, 6)."""
     for i in prange(points.shape[0]):
         tid = thread_id()
         p = (points[i, 0], points[i, 1], points[i, 2])

@@ -46,9 +46,9 @@ def _margin(t):
 @inline_kernel
 def _cross_split(node_records, node_links, node, oa, da, inv_a, t0, t1):
     """One step at inner ``node`` of a ray with origin ``oa``, direction ``da`` and reciprocal
-    ``inv_a`` on the node's axis, inside ``[t0, t1]``: ``(next, t1,
-    pushed, push_t0, push_t1)``, the child to visit next with the end of its interval (its
-    start stays ``t0``), and the child to push with its interval, ``pushed = -1`` when none."""
+    ``inv_a`` on the node's axis, inside ``[t0, t1]``: ``(next, t1, pushed, push_t0, push_t1)``,
+    the child to visit next with the end of its interval (its start stays ``t0``), and the
+    child to push with its interval, ``pushed = -1`` when none."""
     split = node_records[node, 0]
     below = node_links[node, 2]
     if da == 0.0:
