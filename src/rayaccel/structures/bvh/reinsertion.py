@@ -1,0 +1,298 @@
+"""Insertion-based optimisation of a built BVH: subtrees moved to where they cost least.
+
+Bittner, Hapala & Havran, "Fast Insertion-Based Optimization of Bounding Volume
+Hierarchies", Computer Graphics Forum 32(1), 2013. A top-down builder decides each
+split once, from the top, and never revisits it; this pass takes the nodes that
+look worst placed, removes each with its parent (the sibling takes the parent's
+place), and inserts it again beside the node where it adds the least surface
+area, which may be where it was. Moving a subtree changes no leaf, so the SAH
+cost changes only by the inner nodes' areas: the cost of inserting node ``N`` as
+sibling of node ``X`` is the area of the new parent's box (``X``'s and ``N``'s
+together) plus what every ancestor of ``X`` grows by. The best ``X`` is found by
+branch and bound over the tree, nodes taken in order of the growth their
+ancestors already add (their "induced" cost), which never falls going down, a
+subtree being cut off once that plus ``N``'s own area can no longer win. The old
+position is among the candidates, so a move never raises the cost.
+
+Which nodes to move: in each round the largest ``1 %`` by the paper's
+``M_sum_min_area`` measure, the node's area times its area over its children's
+smallest and over their sum (a node much larger than its children bounds them
+loosely); leaves count by their area alone. Rounds go on while one lowers the
+inner nodes' total area by more than :data:`MIN_ROUND_GAIN` of it, up to
+``rounds``. The tree is then laid out again depth-first, leaves taking their
+primitives in that order.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..._jit import kernel, unsigned
+from .nodes import box_area6, compact
+
+__all__ = ["reinsert_subtrees", "MIN_ROUND_GAIN"]
+
+MIN_ROUND_GAIN = 0.01
+"""A round that lowers the inner nodes' total area by less than this fraction of it is the last."""
+_MOVED_FRACTION = 0.01
+
+
+@kernel
+def _links(first, count):
+    """``(left, right, parent)`` of the binary layout's nodes, -1 where there is none."""
+    n = first.shape[0]
+    left = np.full(n, -1, dtype=np.int64)
+    right = np.full(n, -1, dtype=np.int64)
+    parent = np.full(n, -1, dtype=np.int64)
+    for node in range(n):
+        if count[node] == 0:
+            below = first[node]
+            left[node] = below
+            right[node] = below + 1
+            parent[below] = node
+            parent[below + 1] = node
+    return left, right, parent
+
+
+@kernel
+def _union_area(box, a, other):
+    """Area of the box around row ``a`` of ``box`` and the box ``other`` (6,)."""
+    ex = max(box[a, 3], other[3]) - min(box[a, 0], other[0])
+    ey = max(box[a, 4], other[4]) - min(box[a, 1], other[1])
+    ez = max(box[a, 5], other[5]) - min(box[a, 2], other[2])
+    return 2.0 * (ex * ey + ey * ez + ex * ez)
+
+
+@kernel
+def _refit_upwards(box, left, right, parent, node):
+    """Make the boxes from ``node`` up to the root the unions of their children's, stopping at
+    the first that stays as it was (those above it then stay too)."""
+    while node >= 0:
+        a, b = left[node], right[node]
+        changed = False
+        for k in range(3):
+            lo = min(box[a, k], box[b, k])
+            hi = max(box[a, k + 3], box[b, k + 3])
+            changed |= lo != box[node, k] or hi != box[node, k + 3]
+            box[node, k] = lo
+            box[node, k + 3] = hi
+        if not changed:
+            return
+        node = parent[node]
+
+
+@kernel
+def _heap_push(costs, nodes, size, cost, node):
+    """Add ``node`` with ``cost`` to the binary min-heap held in the first ``size`` entries."""
+    slot = size
+    while slot > 0:
+        up = (slot - 1) >> 1
+        if costs[up] <= cost:
+            break
+        costs[slot] = costs[up]
+        nodes[slot] = nodes[up]
+        slot = up
+    costs[slot] = cost
+    nodes[slot] = node
+    return size + 1
+
+
+@kernel
+def _heap_pop(costs, nodes, size):
+    """Remove the heap's cheapest entry: ``(cost, node, new size)``."""
+    cost, node = costs[0], nodes[0]
+    size -= 1
+    last_cost, last_node = costs[size], nodes[size]
+    slot = 0
+    while True:
+        child = 2 * slot + 1
+        if child >= size:
+            break
+        if child + 1 < size and costs[child + 1] < costs[child]:
+            child += 1
+        if costs[child] >= last_cost:
+            break
+        costs[slot] = costs[child]
+        nodes[slot] = nodes[child]
+        slot = child
+    costs[slot] = last_cost
+    nodes[slot] = last_node
+    return cost, node, size
+
+
+@kernel
+def _best_sibling(box, left, right, root, moved, heap_costs, heap_nodes):
+    """The node beside which the box ``moved`` (6,) adds the least area to the tree under
+    ``root``, and that area: branch and bound on the induced cost (see the module docstring)."""
+    moved_area = box_area6(moved)
+    best_cost = np.inf
+    best = root
+    size = _heap_push(heap_costs, heap_nodes, 0, 0.0, root)
+    while size > 0:
+        induced, node, size = _heap_pop(heap_costs, heap_nodes, size)
+        if induced + moved_area >= best_cost:
+            break
+        direct = _union_area(box, node, moved)
+        if induced + direct < best_cost:
+            best_cost = induced + direct
+            best = node
+        if left[node] >= 0:
+            below = induced + direct - box_area6(box[node])
+            if below + moved_area < best_cost:
+                size = _heap_push(heap_costs, heap_nodes, size, below, left[node])
+                size = _heap_push(heap_costs, heap_nodes, size, below, right[node])
+    return best, best_cost
+
+
+@kernel
+def _replace_child(left, right, parent, old, new):
+    """Put ``new`` where ``old`` hangs under its parent (nothing when ``old`` is the root)."""
+    above = parent[old]
+    if above >= 0:
+        if left[above] == old:
+            left[above] = new
+        else:
+            right[above] = new
+    parent[new] = above
+
+
+@kernel
+def _path_area(box, parent, node):
+    """The summed area of ``node`` and its ancestors' boxes."""
+    total = 0.0
+    while node >= 0:
+        total += box_area6(box[node])
+        node = parent[node]
+    return total
+
+
+@kernel
+def _move(box, left, right, parent, root, node, heap_costs, heap_nodes):
+    """Remove ``node`` and its parent and insert ``node`` again beside the best sibling, its old
+    parent's record becoming the new parent, with ``node`` as its first child. Returns ``(root,
+    area saved)``."""
+    old_parent = parent[node]
+    sibling = right[old_parent] if left[old_parent] == node else left[old_parent]
+    grand = parent[old_parent]
+    saved = box_area6(box[old_parent]) + _path_area(box, parent, grand)
+    _replace_child(left, right, parent, old_parent, sibling)
+    _refit_upwards(box, left, right, parent, grand)
+    saved -= _path_area(box, parent, grand)
+    target, added = _best_sibling(box, left, right, root, box[node], heap_costs, heap_nodes)
+    if target == root:
+        root = old_parent
+    _replace_child(left, right, parent, target, old_parent)
+    left[old_parent] = node
+    right[old_parent] = target
+    parent[target] = old_parent
+    parent[node] = old_parent
+    for k in range(3):
+        box[old_parent, k] = min(box[target, k], box[node, k])
+        box[old_parent, k + 3] = max(box[target, k + 3], box[node, k + 3])
+    _refit_upwards(box, left, right, parent, parent[old_parent])
+    return root, saved - added
+
+
+@kernel
+def _inefficiency(box, left, right, parent, root):
+    """Each node's ``M_sum_min_area`` (leaves: their area), and -1 for the nodes that cannot
+    move: the root and its two children."""
+    n = box.shape[0]
+    measure = np.empty(n)
+    for node in range(n):
+        area = box_area6(box[node])
+        if node == root or parent[node] == root:
+            measure[node] = -1.0
+        elif left[node] < 0:
+            measure[node] = area
+        else:
+            a = box_area6(box[left[node]])
+            b = box_area6(box[right[node]])
+            measure[node] = area * area / max(min(a, b), 1e-300) * area / max(a + b, 1e-300)
+    return measure
+
+
+@kernel
+def _inner_area(box, left):
+    total = 0.0
+    for node in range(box.shape[0]):
+        if left[node] >= 0:
+            total += box_area6(box[node])
+    return total
+
+
+@kernel
+def _worst_nodes(measure, batch):
+    """The ``batch`` nodes of largest ``measure`` (fewer when fewer can move), largest first."""
+    n = measure.shape[0]
+    threshold = max(np.partition(measure, n - batch)[n - batch], 0.0)
+    candidates = np.nonzero(measure >= threshold)[0]
+    return candidates[np.argsort(-measure[candidates])][:batch]
+
+
+@kernel
+def _optimise(box, first, count, rounds, moved_fraction, min_round_gain):
+    """The rounds of moves on ``box`` (changed in place): ``(left, right, root, area saved, inner
+    nodes' total area before)``."""
+    left, right, parent = _links(first, count)
+    n = box.shape[0]
+    root = 0
+    heap_costs = np.empty(n + 1)
+    heap_nodes = np.empty(n + 1, dtype=np.int64)
+    batch = max(1, int(n * moved_fraction))
+    total_saved = 0.0
+    total_before = _inner_area(box, left)
+    total = total_before
+    for _ in range(rounds):
+        measure = _inefficiency(box, left, right, parent, root)
+        saved = 0.0
+        for node in _worst_nodes(measure, batch):
+            if parent[node] < 0 or parent[parent[node]] < 0:
+                continue
+            root, gain = _move(box, left, right, parent, root, node, heap_costs, heap_nodes)
+            saved += gain
+        total_saved += saved
+        if saved <= min_round_gain * total:
+            break
+        total -= saved
+    return left, right, root, total_saved, total_before
+
+
+@kernel
+def _leaves_in_order(first, count, order):
+    """``order`` rewritten so that the leaves of the depth-first layout take their primitives
+    one after the other, and ``first`` of each leaf pointing there."""
+    new_order = np.empty_like(order)
+    offset = 0
+    stack = np.empty(first.shape[0] + 1, dtype=np.int64)
+    stack[0] = 0
+    sp = 1
+    while sp > 0:
+        sp -= 1
+        node = stack[sp]
+        if count[node] == 0:
+            stack[sp] = first[node] + 1
+            stack[sp + 1] = first[node]
+            sp += 2
+            continue
+        for k in range(count[node]):
+            new_order[offset + k] = order[unsigned(first[node] + k)]
+        first[node] = offset
+        offset += count[node]
+    return new_order
+
+
+def reinsert_subtrees(box, first, count, order, rounds: int = 64):
+    """The tree of the binary layout ``(box, first, count, order)`` improved by moving subtrees
+    (see the module docstring): the same four arrays, laid out afresh."""
+    if len(first) < 5:
+        return box, first, count, order
+    moved_box = box.copy()
+    left, right, root, saved, total = _optimise(moved_box, first, count, rounds, _MOVED_FRACTION, MIN_ROUND_GAIN)
+    if saved <= MIN_ROUND_GAIN * total:
+        return box, first, count, order
+    box = moved_box
+    leaf_count = np.where(left < 0, count, 0).astype(np.int32)
+    new_box, new_first, new_count = compact(box, left, right, first, leaf_count, root)
+    new_order = _leaves_in_order(new_first, new_count, order)
+    return new_box, new_first, new_count, new_order
