@@ -14,13 +14,25 @@ ancestors already add (their "induced" cost), which never falls going down, a
 subtree being cut off once that plus ``N``'s own area can no longer win. The old
 position is among the candidates, so a move never raises the cost.
 
-Which nodes to move: in each round the largest ``1 %`` by the paper's
-``M_sum_min_area`` measure, the node's area times its area over its children's
-smallest and over their sum (a node much larger than its children bounds them
+Which nodes to move: in each round the largest ``1 %`` by a measure after the
+paper's combined one, the node's area times its area over its smaller child's and
+over its children's sum (a node much larger than its children bounds them
 loosely); leaves count by their area alone. Rounds go on while one lowers the
 inner nodes' total area by more than :data:`MIN_ROUND_GAIN` of it, up to
-``rounds``. The tree is then laid out again depth-first, leaves taking their
-primitives in that order.
+``rounds``; a tree that all rounds together improve by less is kept as built. The
+moved node becomes the first child of its new parent, where an any-hit walk,
+which takes children in the tree's order, looks first: made the second, the
+forest's any-hit rays ran at 0.72-0.92 of the tree as built. The tree is then
+laid out again depth-first, leaves taking their primitives in that order.
+
+Measured with ``bvh-binned`` (32 bins), whose top splits cannot isolate a small
+dense object in a large scene: forest-small-chair (a chair half a unit tall among
+the trees of a 100-unit forest, two thirds of the triangles) SAH cost 49.86 ->
+43.67, nodes visited per incoherent ray 6.69 -> 6.20 (any hit 4.51 -> 4.21), per
+shadow ray 6.50 -> 5.98, leaves and triangle tests the same; forest-large-chair
+35.51 -> 33.84. On the scanned meshes (bunny, armadillo, Buddha, the dragons) a
+round saves under 1 % and the tree stays as built, after one round: 45-55 ms of
+the full dragon's build, 22 ms on the forest.
 """
 
 from __future__ import annotations
