@@ -39,7 +39,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..._jit import kernel, unsigned
+from ..._jit import inline_kernel, kernel, unsigned
 from .nodes import box_area6, compact
 
 __all__ = ["reinsert_subtrees", "MIN_ROUND_GAIN"]
@@ -49,24 +49,45 @@ MIN_ROUND_GAIN = 0.01
 _MOVED_FRACTION = 0.01
 
 
-@kernel
 def _links(first, count):
     """``(left, right, parent)`` of the binary layout's nodes, -1 where there is none."""
-    n = first.shape[0]
+    n = len(first)
+    inner = np.flatnonzero(count == 0)
     left = np.full(n, -1, dtype=np.int64)
-    right = np.full(n, -1, dtype=np.int64)
+    left[inner] = first[inner]
+    right = np.where(left >= 0, left + 1, -1)
     parent = np.full(n, -1, dtype=np.int64)
-    for node in range(n):
-        if count[node] == 0:
-            below = first[node]
-            left[node] = below
-            right[node] = below + 1
-            parent[below] = node
-            parent[below + 1] = node
+    parent[first[inner]] = inner
+    parent[first[inner] + 1] = inner
     return left, right, parent
 
 
-@kernel
+def _areas(box):
+    """The surface area of every box row."""
+    extent = np.maximum(box[:, 3:] - box[:, :3], 0.0)
+    return 2.0 * (extent[:, 0] * extent[:, 1] + extent[:, 1] * extent[:, 2] + extent[:, 0] * extent[:, 2])
+
+
+def _worst_nodes(box, left, right, parent, root, batch):
+    """The ``batch`` nodes that look worst placed, worst first: by the node's area times its
+    area over its smaller child's and over its children's sum (leaves: their area); the root
+    and its children, which cannot move, left out. Also the inner nodes' total area."""
+    area = _areas(box)
+    inner = left >= 0
+    child_a = area[np.where(inner, left, 0)]
+    child_b = area[np.where(inner, right, 0)]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        measure = np.where(inner, area ** 3 / np.maximum(np.minimum(child_a, child_b) * (child_a + child_b), 1e-300),
+                           area)
+    measure[root] = -1.0
+    measure[parent == root] = -1.0
+    batch = min(batch, len(measure))
+    picked = np.argpartition(-measure, batch - 1)[:batch]
+    picked = picked[measure[picked] >= 0.0]
+    return picked[np.argsort(-measure[picked], kind="stable")], float(area[inner].sum())
+
+
+@inline_kernel
 def _union_area(box, a, other):
     """Area of the box around row ``a`` of ``box`` and the box ``other`` (6,)."""
     ex = max(box[a, 3], other[3]) - min(box[a, 0], other[0])
@@ -75,7 +96,7 @@ def _union_area(box, a, other):
     return 2.0 * (ex * ey + ey * ez + ex * ez)
 
 
-@kernel
+@inline_kernel
 def _refit_upwards(box, left, right, parent, node):
     """Make the boxes from ``node`` up to the root the unions of their children's, stopping at
     the first that stays as it was (those above it then stay too)."""
@@ -93,7 +114,7 @@ def _refit_upwards(box, left, right, parent, node):
         node = parent[node]
 
 
-@kernel
+@inline_kernel
 def _heap_push(costs, nodes, size, cost, node):
     """Add ``node`` with ``cost`` to the binary min-heap held in the first ``size`` entries."""
     slot = size
@@ -109,7 +130,7 @@ def _heap_push(costs, nodes, size, cost, node):
     return size + 1
 
 
-@kernel
+@inline_kernel
 def _heap_pop(costs, nodes, size):
     """Remove the heap's cheapest entry: ``(cost, node, new size)``."""
     cost, node = costs[0], nodes[0]
@@ -132,31 +153,32 @@ def _heap_pop(costs, nodes, size):
     return cost, node, size
 
 
-@kernel
-def _best_sibling(box, left, right, root, moved, heap_costs, heap_nodes):
-    """The node beside which the box ``moved`` (6,) adds the least area to the tree under
-    ``root``, and that area: branch and bound on the induced cost (see the module docstring)."""
+@inline_kernel
+def _best_sibling(box, left, right, root, node, heap_costs, heap_nodes):
+    """The node beside which node ``node``'s box adds the least area to the tree under ``root``,
+    and that area: branch and bound on the induced cost (see the module docstring)."""
+    moved = box[node]
     moved_area = box_area6(moved)
     best_cost = np.inf
     best = root
     size = _heap_push(heap_costs, heap_nodes, 0, 0.0, root)
     while size > 0:
-        induced, node, size = _heap_pop(heap_costs, heap_nodes, size)
+        induced, candidate, size = _heap_pop(heap_costs, heap_nodes, size)
         if induced + moved_area >= best_cost:
             break
-        direct = _union_area(box, node, moved)
+        direct = _union_area(box, candidate, moved)
         if induced + direct < best_cost:
             best_cost = induced + direct
-            best = node
-        if left[node] >= 0:
-            below = induced + direct - box_area6(box[node])
+            best = candidate
+        if left[candidate] >= 0:
+            below = induced + direct - box_area6(box[candidate])
             if below + moved_area < best_cost:
-                size = _heap_push(heap_costs, heap_nodes, size, below, left[node])
-                size = _heap_push(heap_costs, heap_nodes, size, below, right[node])
+                size = _heap_push(heap_costs, heap_nodes, size, below, left[candidate])
+                size = _heap_push(heap_costs, heap_nodes, size, below, right[candidate])
     return best, best_cost
 
 
-@kernel
+@inline_kernel
 def _replace_child(left, right, parent, old, new):
     """Put ``new`` where ``old`` hangs under its parent (nothing when ``old`` is the root)."""
     above = parent[old]
@@ -168,7 +190,7 @@ def _replace_child(left, right, parent, old, new):
     parent[new] = above
 
 
-@kernel
+@inline_kernel
 def _path_area(box, parent, node):
     """The summed area of ``node`` and its ancestors' boxes."""
     total = 0.0
@@ -179,95 +201,36 @@ def _path_area(box, parent, node):
 
 
 @kernel
-def _move(box, left, right, parent, root, node, heap_costs, heap_nodes):
-    """Remove ``node`` and its parent and insert ``node`` again beside the best sibling, its old
-    parent's record becoming the new parent, with ``node`` as its first child. Returns ``(root,
-    area saved)``."""
-    old_parent = parent[node]
-    sibling = right[old_parent] if left[old_parent] == node else left[old_parent]
-    grand = parent[old_parent]
-    saved = box_area6(box[old_parent]) + _path_area(box, parent, grand)
-    _replace_child(left, right, parent, old_parent, sibling)
-    _refit_upwards(box, left, right, parent, grand)
-    saved -= _path_area(box, parent, grand)
-    target, added = _best_sibling(box, left, right, root, box[node], heap_costs, heap_nodes)
-    if target == root:
-        root = old_parent
-    _replace_child(left, right, parent, target, old_parent)
-    left[old_parent] = node
-    right[old_parent] = target
-    parent[target] = old_parent
-    parent[node] = old_parent
-    for k in range(3):
-        box[old_parent, k] = min(box[target, k], box[node, k])
-        box[old_parent, k + 3] = max(box[target, k + 3], box[node, k + 3])
-    _refit_upwards(box, left, right, parent, parent[old_parent])
-    return root, saved - added
-
-
-@kernel
-def _inefficiency(box, left, right, parent, root):
-    """Each node's ``M_sum_min_area`` (leaves: their area), and -1 for the nodes that cannot
-    move: the root and its two children."""
-    n = box.shape[0]
-    measure = np.empty(n)
-    for node in range(n):
-        area = box_area6(box[node])
-        if node == root or parent[node] == root:
-            measure[node] = -1.0
-        elif left[node] < 0:
-            measure[node] = area
-        else:
-            a = box_area6(box[left[node]])
-            b = box_area6(box[right[node]])
-            measure[node] = area * area / max(min(a, b), 1e-300) * area / max(a + b, 1e-300)
-    return measure
-
-
-@kernel
-def _inner_area(box, left):
-    total = 0.0
-    for node in range(box.shape[0]):
-        if left[node] >= 0:
-            total += box_area6(box[node])
-    return total
-
-
-@kernel
-def _worst_nodes(measure, batch):
-    """The ``batch`` nodes of largest ``measure`` (fewer when fewer can move), largest first."""
-    n = measure.shape[0]
-    threshold = max(np.partition(measure, n - batch)[n - batch], 0.0)
-    candidates = np.nonzero(measure >= threshold)[0]
-    return candidates[np.argsort(-measure[candidates])][:batch]
-
-
-@kernel
-def _optimise(box, first, count, rounds, moved_fraction, min_round_gain):
-    """The rounds of moves on ``box`` (changed in place): ``(left, right, root, area saved, inner
-    nodes' total area before)``."""
-    left, right, parent = _links(first, count)
-    n = box.shape[0]
-    root = 0
-    heap_costs = np.empty(n + 1)
-    heap_nodes = np.empty(n + 1, dtype=np.int64)
-    batch = max(1, int(n * moved_fraction))
+def _move_nodes(box, left, right, parent, root, nodes, heap_costs, heap_nodes):
+    """Remove each of ``nodes`` in turn with its parent and insert it again beside its best
+    sibling, its old parent's record becoming the new parent, with the node as its first
+    child; a node that has come to hang under the root or its children stays. Returns
+    ``(root, area saved)``."""
     total_saved = 0.0
-    total_before = _inner_area(box, left)
-    total = total_before
-    for _ in range(rounds):
-        measure = _inefficiency(box, left, right, parent, root)
-        saved = 0.0
-        for node in _worst_nodes(measure, batch):
-            if parent[node] < 0 or parent[parent[node]] < 0:
-                continue
-            root, gain = _move(box, left, right, parent, root, node, heap_costs, heap_nodes)
-            saved += gain
-        total_saved += saved
-        if saved <= min_round_gain * total:
-            break
-        total -= saved
-    return left, right, root, total_saved, total_before
+    for node in nodes:
+        old_parent = parent[node]
+        if old_parent < 0 or parent[old_parent] < 0:
+            continue
+        sibling = right[old_parent] if left[old_parent] == node else left[old_parent]
+        grand = parent[old_parent]
+        saved = box_area6(box[old_parent]) + _path_area(box, parent, grand)
+        _replace_child(left, right, parent, old_parent, sibling)
+        _refit_upwards(box, left, right, parent, grand)
+        saved -= _path_area(box, parent, grand)
+        target, added = _best_sibling(box, left, right, root, node, heap_costs, heap_nodes)
+        if target == root:
+            root = old_parent
+        _replace_child(left, right, parent, target, old_parent)
+        left[old_parent] = node
+        right[old_parent] = target
+        parent[target] = old_parent
+        parent[node] = old_parent
+        for k in range(3):
+            box[old_parent, k] = min(box[target, k], box[node, k])
+            box[old_parent, k + 3] = max(box[target, k + 3], box[node, k + 3])
+        _refit_upwards(box, left, right, parent, parent[old_parent])
+        total_saved += saved - added
+    return root, total_saved
 
 
 @kernel
@@ -296,15 +259,28 @@ def _leaves_in_order(first, count, order):
 
 def reinsert_subtrees(box, first, count, order, rounds: int = 64):
     """The tree of the binary layout ``(box, first, count, order)`` improved by moving subtrees
-    (see the module docstring): the same four arrays, laid out afresh."""
-    if len(first) < 5:
+    (see the module docstring), laid out afresh in four arrays of the same kinds; the arrays
+    given when the moves would save less than :data:`MIN_ROUND_GAIN` of the inner area."""
+    n = len(first)
+    if n < 5:
         return box, first, count, order
     moved_box = box.copy()
-    left, right, root, saved, total = _optimise(moved_box, first, count, rounds, _MOVED_FRACTION, MIN_ROUND_GAIN)
-    if saved <= MIN_ROUND_GAIN * total:
+    left, right, parent = _links(first, count)
+    root = 0
+    heap_costs = np.empty(n + 1)
+    heap_nodes = np.empty(n + 1, dtype=np.int64)
+    batch = max(1, int(n * _MOVED_FRACTION))
+    total_saved = 0.0
+    for round_number in range(rounds):
+        nodes, inner_area = _worst_nodes(moved_box, left, right, parent, root, batch)
+        if round_number == 0:
+            area_as_built = inner_area
+        root, saved = _move_nodes(moved_box, left, right, parent, root, nodes, heap_costs, heap_nodes)
+        total_saved += saved
+        if saved <= MIN_ROUND_GAIN * inner_area:
+            break
+    if total_saved <= MIN_ROUND_GAIN * area_as_built:
         return box, first, count, order
-    box = moved_box
     leaf_count = np.where(left < 0, count, 0).astype(np.int32)
-    new_box, new_first, new_count = compact(box, left, right, first, leaf_count, root)
-    new_order = _leaves_in_order(new_first, new_count, order)
-    return new_box, new_first, new_count, new_order
+    new_box, new_first, new_count = compact(moved_box, left, right, first, leaf_count, root)
+    return new_box, new_first, new_count, _leaves_in_order(new_first, new_count, order)
