@@ -114,7 +114,7 @@ def test_structural_invariants(small_dragon, method, reinsertion):
 def _forest_with_a_speck():
     """Sixty trees over the 100 x 100 ground and a chair half a unit tall among them, tessellated
     finely: the binned SAH's top splits, whose 32 bins span the forest, cannot cut the dense
-    speck out, and the tree it builds costs a fifth more than the one reinsertion makes of it."""
+    speck out, and the tree it builds costs a quarter more than the one reinsertion makes of it."""
     trees = ra.procedural.forest(n_trees=60)
     seat = ra.procedural.chair(0.25, detail=6)
     return ra.TriangleMesh(np.concatenate((trees.vertices, seat.vertices + [50.3, 0.0, 49.7])),

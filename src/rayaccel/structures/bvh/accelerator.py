@@ -116,8 +116,8 @@ class BoundingVolumeHierarchy(Accelerator):
         After the build, move the subtrees that bound their children worst to where they
         add the least area (:mod:`rayaccel.structures.bvh.reinsertion`, Bittner et al.
         2013), while a round of moves lowers the inner nodes' total area by 1 % or more;
-        a tree it would improve by less is kept as built. The lecture's builders default
-        to the tree as published, so that comparing them compares the builders.
+        a tree it would improve by less is kept as built. The other builders default to
+        their trees as published; the builders' experiment runs every one as published.
     """
 
     default_leaf_size = 4
