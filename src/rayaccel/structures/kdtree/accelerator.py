@@ -177,11 +177,9 @@ class KdTree(Accelerator):
         """What the queries read besides the built (or loaded) tree: the primitives in reference
         order (:meth:`~rayaccel.scene.TriangleMesh.gather`: read one after the other at a leaf,
         and smaller on a float32 mesh: 36 bytes a reference against the scene's 72 a triangle),
-        and the cell and depth of every node."""
+        and the tree's depth, which sizes the walks' stacks."""
         self.geometry = self.scene.gather(self.kd.leaf_prims)
-        self._cells, depth = node_cells(self.kd.lo, self.kd.hi, self.kd.node_records)
-        self._depth = depth.astype(np.uint8)
-        self.max_depth = int(depth.max())
+        self.max_depth = int(node_cells(self.kd.lo, self.kd.hi, self.kd.node_records)[1].max())
 
     def _build(self, scene, threads, traversal_cost, intersection_cost, empty_bonus, leaf_size, max_depth, bins,
                exact_below):
@@ -229,8 +227,10 @@ class KdTree(Accelerator):
         return tree, tasks
 
     def node_cells(self) -> np.ndarray:
-        """(n_nodes, 6) cell of every node, lo and hi."""
-        return self._cells
+        """(n_nodes, 6) cell of every node, lo and hi, derived from the planes at each call: kept
+        beside the tree, with each node's depth, they held 93.5 bytes a triangle of the full
+        dragon, beside the 100.5 of the tree and its primitives that the queries read."""
+        return node_cells(self.kd.lo, self.kd.hi, self.kd.node_records)[0]
 
     def _trace(self, batch, any_hit, action, work):
         k = self.kd
@@ -262,10 +262,11 @@ class KdTree(Accelerator):
         k = self.kd
         leaf = k.axis == LEAF
         counts = k.count[leaf]
-        areas = box_area(self._cells[:, :3], self._cells[:, 3:])
+        cells, depth = node_cells(k.lo, k.hi, k.node_records)
+        areas = box_area(cells[:, :3], cells[:, 3:])
         nonempty = int(np.count_nonzero(counts))
         over_leaf_size = counts > self.options["leaf_size"]
-        at_depth_limit = over_leaf_size & (self._depth[leaf] >= self.options["max_depth"])
+        at_depth_limit = over_leaf_size & (depth[leaf] >= self.options["max_depth"])
         result = {
             "nodes": k.n_nodes,
             "leaves": int(leaf.sum()),
