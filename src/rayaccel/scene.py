@@ -90,13 +90,14 @@ class TriangleMesh:
         """Whether every vertex coordinate is a float32 number (as read from binary PLY or STL)."""
         return float32_exact(self.vertices)
 
-    def gather(self, order: np.ndarray, out=None):
+    def gather(self, order: np.ndarray, out=None, *, indexed: bool = False):
         """The faces ``order`` in that order, in the smallest exact layout of
         :mod:`rayaccel.geometry.gather`: (n, 9) float32 rows when :attr:`float32_exact`, else
         vertex indices into the vertices renumbered by first use. Rows go into ``out`` when it
-        is rows of that shape."""
+        is rows of that shape. ``indexed`` asks for the indexed layout on a float32 mesh too,
+        for an ``order`` that repeats faces (a kd-tree's references), where rows repeat them whole."""
         return gather_triangles(self.vertices, self.faces, np.ascontiguousarray(order, dtype=np.int64),
-                                self.float32_exact, out)
+                                self.float32_exact and not indexed, out)
 
     def __len__(self) -> int:
         return len(self.faces)

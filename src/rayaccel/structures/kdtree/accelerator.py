@@ -12,6 +12,7 @@ import numpy as np
 from ..._jit import kernel, thread_count, thread_rows
 from ..._validate import check_number
 from ...geometry.gather import layout_nbytes
+from ...geometry.kinds import TRIANGLE
 from ...stats import box_area, surface_area_stats
 from ..actions import NEAREST
 from ..base import Accelerator, walk_rays
@@ -175,10 +176,16 @@ class KdTree(Accelerator):
 
     def _derive_from_tree(self) -> None:
         """What the queries read besides the built (or loaded) tree: the primitives in reference
-        order (:meth:`~rayaccel.scene.TriangleMesh.gather`: read one after the other at a leaf,
-        and smaller on a float32 mesh: 36 bytes a reference against the scene's 72 a triangle),
-        and the tree's depth, which sizes the walks' stacks."""
-        self.geometry = self.scene.gather(self.kd.leaf_prims)
+        order, read one after the other at a leaf, triangles in the indexed layout
+        (:meth:`~rayaccel.scene.TriangleMesh.gather`), and the tree's depth, which sizes the
+        walks' stacks. Float32 rows, 36 bytes a reference, held 63 bytes a triangle of the full
+        dragon (1.75 references each) and put the kd-tree at 100.5 bytes a triangle, over
+        Embree's 91.9; indexed, 70.6, and 0.92-1.01 times as fast (medians of 7 interleaved
+        rounds, camera, incoherent and shadow rays, closest and any hit, two threads)."""
+        if self.scene.kind == TRIANGLE:
+            self.geometry = self.scene.gather(self.kd.leaf_prims, indexed=True)
+        else:
+            self.geometry = self.scene.gather(self.kd.leaf_prims)
         self.max_depth = int(node_cells(self.kd.lo, self.kd.hi, self.kd.node_records)[1].max())
 
     def _build(self, scene, threads, traversal_cost, intersection_cost, empty_bonus, leaf_size, max_depth, bins,
