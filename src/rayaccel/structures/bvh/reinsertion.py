@@ -31,7 +31,7 @@ the trees of a 100-unit forest, two thirds of the triangles) SAH cost 49.86 ->
 43.46, nodes visited per incoherent ray 6.69 -> 6.20 (any hit 4.51 -> 4.22), per
 shadow ray 6.50 -> 6.00, leaves and triangle tests the same; forest-large-chair
 35.51 -> 33.84. On the scanned meshes (bunny, armadillo, Buddha, the dragons) a
-round saves under 1 % and the tree stays as built, after one round: 45-55 ms of
+round saves under 1 % and the tree stays as built, after one round: 64-85 ms of
 the full dragon's build. The node measures and the choice of nodes run in NumPy
 and the moves in one kernel, its helpers inlined: written as a kernel each, with
 Numba's sort and partition, the first build on an empty cache compiled 52
