@@ -257,12 +257,13 @@ def test_counters(small_dragon):
     method=st.sampled_from(BUILDERS),
     volume=st.sampled_from(VOLUMES),
     leaf=st.integers(1, 9),
+    reinsertion=st.booleans(),
 )
-def test_random_scenes_property(n, seed, method, volume, leaf):
+def test_random_scenes_property(n, seed, method, volume, leaf, reinsertion):
     scene = ra.random_spheres(n, seed=seed, fill=0.2)
     origins, directions = random_rays(scene, 200, seed=seed)
     reference = ra.build(scene, "none").intersect(origins, directions)
-    accel = ra.build(scene, method, max_leaf_size=leaf, **volume)
+    accel = ra.build(scene, method, max_leaf_size=leaf, reinsertion=reinsertion, **volume)
     assert_same_hits(reference, accel.intersect(origins, directions))
     assert (accel.bvh.node_count <= leaf).all()
 
