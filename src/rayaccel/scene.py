@@ -97,7 +97,7 @@ class TriangleMesh:
         is rows of that shape. ``indexed`` asks for the indexed layout on a float32 mesh too,
         for an ``order`` that repeats faces (a kd-tree's references), where rows repeat them whole."""
         return gather_triangles(self.vertices, self.faces, np.ascontiguousarray(order, dtype=np.int64),
-                                self.float32_exact and not indexed, out)
+                                not indexed and self.float32_exact, out)
 
     def __len__(self) -> int:
         return len(self.faces)

@@ -102,6 +102,21 @@ def _exact_batch(tasks, params, defer_below=0):
     return (*forest, len(tasks)), [task[0] for task in tasks], list(deferred)
 
 
+def _tree_depth(kd: KdTreeArrays) -> int:
+    """The depth of the deepest node, found level by level (children sit side by side), without
+    the cells :func:`.layout.node_cells` would compute beside the depths."""
+    inner = kd.axis != LEAF
+    links = kd.node_link[:, 0]
+    level = np.zeros(1, dtype=np.int64)
+    depth = 0
+    while True:
+        parents = level[inner[level]]
+        if len(parents) == 0:
+            return depth
+        level = np.concatenate((links[parents], links[parents] + 1))
+        depth += 1
+
+
 class KdTree(Accelerator):
     """``kdtree``: SAH kd-tree with perfect splits, built in O(N log N) (Wald & Havran 2006).
 
@@ -186,7 +201,7 @@ class KdTree(Accelerator):
             self.geometry = self.scene.gather(self.kd.leaf_prims, indexed=True)
         else:
             self.geometry = self.scene.gather(self.kd.leaf_prims)
-        self.max_depth = int(node_cells(self.kd.lo, self.kd.hi, self.kd.node_records)[1].max())
+        self.max_depth = _tree_depth(self.kd)
 
     def _build(self, scene, threads, traversal_cost, intersection_cost, empty_bonus, leaf_size, max_depth, bins,
                exact_below):
