@@ -10,8 +10,8 @@ from rayaccel.cli import main
 
 def test_render_with_heatmaps(tmp_path, capsys):
     out = tmp_path / "balls.png"
-    assert main(["--quiet", "render", "spheres:300", "--size", "48", "--heatmap", "both", "--out", str(out),
-                 "-o", "density=4", "-o", "insert=exact"]) == 0
+    assert main(["--quiet", "render", "spheres:300", "--method", "grid", "--size", "48", "--heatmap", "both",
+                 "--out", str(out), "-o", "density=4", "-o", "insert=exact"]) == 0
     image = np.asarray(Image.open(out))
     assert image.shape == (48, 48, 3) and image.std() > 5
     assert (tmp_path / "balls-nodes.png").exists() and (tmp_path / "balls-tests.png").exists()

@@ -12,6 +12,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .structures.registry import DEFAULT_METHOD
+
 __all__ = ["main"]
 
 
@@ -375,7 +377,7 @@ def _parser() -> argparse.ArgumentParser:
 
     render = sub.add_parser("render", help="render a scene to PNG, optionally with cost heatmaps")
     render.add_argument("scene", help="mesh file, built-in scene name, spheres:N, or a saved accelerator")
-    render.add_argument("--method", default="grid")
+    render.add_argument("--method", default=DEFAULT_METHOD)
     render.add_argument("-o", "--option", action="append", help="structure option key=value (repeatable)")
     render.add_argument("--size", type=int, default=512)
     render.add_argument("--width", type=int)
@@ -388,20 +390,20 @@ def _parser() -> argparse.ArgumentParser:
 
     stats = sub.add_parser("stats", help="print the literature's statistics of a structure")
     stats.add_argument("scene", help="mesh file, built-in scene name, spheres:N, or a saved accelerator")
-    stats.add_argument("--method", default="grid")
+    stats.add_argument("--method", default=DEFAULT_METHOD)
     stats.add_argument("-o", "--option", action="append", help="structure option key=value (repeatable)")
     stats.set_defaults(func=_cmd_stats)
 
     build = sub.add_parser("build", help="build a structure and save it to one file (render and stats read it)")
     build.add_argument("scene", help="mesh file, built-in scene name, or spheres:N")
-    build.add_argument("--method", default="bvh-binned")
+    build.add_argument("--method", default=DEFAULT_METHOD)
     build.add_argument("-o", "--option", action="append", help="structure option key=value (repeatable)")
     build.add_argument("--out", required=True, help="file to write (an uncompressed .npz, see rayaccel.persist)")
     build.set_defaults(func=_cmd_build)
 
     sdf = sub.add_parser("sdf", help="sample the signed distance on a grid; write .npy and a PNG of slices")
     sdf.add_argument("scene", help="mesh file, built-in scene name, spheres:N, or a saved accelerator")
-    sdf.add_argument("--method", default="bvh-binned")
+    sdf.add_argument("--method", default=DEFAULT_METHOD)
     sdf.add_argument("-o", "--option", action="append", help="structure option key=value (repeatable)")
     sdf.add_argument("--resolution", type=int, default=128, help="samples along the box's longest side")
     sdf.add_argument("--pad", type=float, default=0.05, help="margin around the box, fraction of its size")

@@ -13,7 +13,7 @@ from .kdtree.accelerator import KdTree
 from .none import BruteForce
 from .octree.accelerator import Octree
 
-__all__ = ["build", "build_class", "methods"]
+__all__ = ["DEFAULT_METHOD", "build", "build_class", "methods"]
 
 _METHODS = {
     "none": BruteForce,
@@ -25,13 +25,17 @@ _METHODS = {
     "octree": Octree,
 }
 
+DEFAULT_METHOD = "bvh-binned"
+"""The method :func:`build` and the command line take when none is named: the fastest to trace
+(see the benchmark table in the README) and among the fastest to build."""
+
 
 def methods() -> list[str]:
     """Every method name :func:`build` accepts."""
     return list(_METHODS)
 
 
-def build(scene, method: str = "grid", **options):
+def build(scene, method: str = DEFAULT_METHOD, **options):
     """Build acceleration structure ``method`` over ``scene``.
 
     Parameters
@@ -41,8 +45,8 @@ def build(scene, method: str = "grid", **options):
         ``method`` with ``options``, under a top-level BVH over its instances
         (:mod:`rayaccel.structures.instanced`).
     method : str
-        One of :func:`methods`; the options of each are documented on its class
-        (``help(rayaccel.build_class(method))``).
+        One of :func:`methods` (:data:`DEFAULT_METHOD` when not given); the options of each are
+        documented on its class (``help(rayaccel.build_class(method))``).
     **options
         Keyword options of that method; unknown ones raise ``TypeError``.
     """
