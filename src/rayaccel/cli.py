@@ -199,14 +199,6 @@ def _cmd_build(args) -> None:
           f"wrote {out} ({out.stat().st_size / 1e6:.1f} MB)")
 
 
-_DEMO_WARM_UP_SIDE = 128
-"""Side of the demo's untimed render before each timed one. On an empty cache, without it, the
-per-core compile missed kernels that the bunny's renders then compiled while timed: grid-bvh
-0.0065 Mrays/s, bvh-agglomerative 0.030 (shadow rays 0.0036), against 3.3 and 6.0 once cached;
-at 64 x 64 the agglomerative BVH's shadow rays still compiled while timed (0.0031), at 128 x 128
-every method showed its speed (grid-bvh 4.2, bvh-agglomerative 6.7 and 2.6 for shadow rays)."""
-
-
 def _cmd_demo(args) -> None:
     from rich.table import Table
 
@@ -231,10 +223,6 @@ def _cmd_demo(args) -> None:
         if method == "none":
             # brute force costs n tests per ray: keep it to about 1e9 tests
             size = int(min(args.size, max(32, np.sqrt(1e9 / len(scene) / 2))))
-        else:
-            # an untimed small render loads or compiles the walks the timed one takes (camera and
-            # shadow packets need 1024 rays or more), which the per-core compile can miss
-            _render(accel, args, True, min(size, _DEMO_WARM_UP_SIDE), min(size, _DEMO_WARM_UP_SIDE))
         result = _render(accel, args, args.quiet, size, size)
         out = out_dir / f"{method}.png"
         files = _write_images(result, out, "both", f"{args.scene}, {method}")
