@@ -178,3 +178,47 @@ def test_packets_count_and_list_what_brute_force_does(small_dragon, every_batch_
     origins, directions = camera_rays(small_dragon, 33) if rays == "camera" else random_rays(small_dragon, 1500, 9)
     brute, packets, _ = brute_and_packets(small_dragon)
     assert_counts_and_lists_match(brute, packets, origins, directions)
+
+
+@pytest.mark.parametrize("query", ["intersect", "occluded"])
+@pytest.mark.parametrize("defect, words", [
+    ("NaN origin", "origins has 1 row"),
+    ("infinite direction", "directions has 1 row"),
+    ("zero direction", "1 ray direction"),
+])
+@pytest.mark.parametrize("batch, kernel", [
+    ("random", "wide_nearest_kernel"),
+    ("camera", "wide_packet_kernel"),
+    ("shadow", "lane_packet_kernel"),
+    ("random interleaved", "interleaved_nearest_kernel"),
+])
+def test_walks_that_check_their_rays_refuse_unusable_ones(small_dragon, monkeypatch, query, defect, words, batch,
+                                                          kernel):
+    """The eight-wide walks read the rays of ``intersect`` and ``occluded`` unchecked and test each
+    themselves: one bad ray among many, in each walk, raises the error the check up front raises,
+    naming its index."""
+    origins, directions = {"random": lambda: random_rays(small_dragon, 1500),
+                           "camera": lambda: camera_rays(small_dragon, 40),
+                           "shadow": lambda: shadow_rays(small_dragon, 160),
+                           "random interleaved": lambda: random_rays(small_dragon, 1500)}[batch]()
+    origins, directions = origins[:1500].copy(), directions[:1500].copy()
+    if batch == "random":
+        origins, directions = origins[:MIN_PACKET_RAYS - 1], directions[:MIN_PACKET_RAYS - 1]
+    if batch == "random interleaved":
+        monkeypatch.setattr(accelerator, "interleaving_pays", lambda batch, lo, hi, nbytes, sampled: True)
+    walks = []
+    walk_rays = accelerator.walk_rays
+    monkeypatch.setattr(accelerator, "walk_rays", lambda walk, *args: walks.append(walk.__name__) or
+                        walk_rays(walk, *args))
+    bvh = ra.build(small_dragon, "bvh-binned")
+    getattr(bvh, query)(origins, directions)
+    assert walks == [kernel]
+    bad = len(origins) // 2 + 3
+    if defect == "NaN origin":
+        origins[bad, 1] = np.nan
+    elif defect == "infinite direction":
+        directions[bad, 2] = -np.inf
+    else:
+        directions[bad] = 0.0
+    with pytest.raises(ValueError, match=f"{words}.*first at index {bad}"):
+        getattr(bvh, query)(origins, directions)

@@ -5,10 +5,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._jit import kernel, on_threads
+from ._jit import inline_kernel, kernel, on_threads
 
 __all__ = ["as_points", "as_index_triples", "as_per_ray", "as_positive_int", "check_number", "first_zero_row",
-           "check_ray_arrays"]
+           "check_ray_arrays", "unusable_ray", "unusable_rays"]
 
 
 @kernel
@@ -29,6 +29,25 @@ def first_zero_row(array):
     return -1
 
 
+@inline_kernel
+def unusable_ray(ox, oy, oz, dx, dy, dz):
+    """Whether the ray from ``(ox, oy, oz)`` along ``(dx, dy, dz)`` is one :func:`check_ray_arrays`
+    refuses: a NaN or infinite coordinate, or an all-zero direction."""
+    # x * 0 is 0 for a finite x and NaN for an infinite or NaN one, without a branch
+    nonfinite = ox * 0.0 + oy * 0.0 + oz * 0.0 + dx * 0.0 + dy * 0.0 + dz * 0.0 != 0.0
+    return nonfinite | ((dx == 0.0) & (dy == 0.0) & (dz == 0.0))
+
+
+@inline_kernel
+def unusable_rays(origins, directions, first, end):
+    """How many of the rays ``first`` to ``end - 1`` are :func:`unusable_ray`."""
+    found = 0
+    for i in range(first, end):
+        found += unusable_ray(origins[i, 0], origins[i, 1], origins[i, 2], directions[i, 0], directions[i, 1],
+                              directions[i, 2])
+    return found
+
+
 @kernel
 def _ray_defects(origins, directions, first, end):
     """How many of the rows ``first:end`` of ``origins`` and of ``directions`` hold a NaN or
@@ -39,7 +58,6 @@ def _ray_defects(origins, directions, first, end):
     for i in range(first, end):
         ox, oy, oz = origins[i, 0], origins[i, 1], origins[i, 2]
         dx, dy, dz = directions[i, 0], directions[i, 1], directions[i, 2]
-        # x * 0 is 0 for a finite x and NaN for an infinite or NaN one, without a branch
         bad_origins += ox * 0.0 + oy * 0.0 + oz * 0.0 != 0.0
         bad_directions += dx * 0.0 + dy * 0.0 + dz * 0.0 != 0.0
         zero_directions += (dx == 0.0) & (dy == 0.0) & (dz == 0.0)
@@ -54,7 +72,9 @@ def _nonfinite_error(name: str, array: np.ndarray, count: int) -> ValueError:
 
 def check_ray_arrays(origins: np.ndarray, directions: np.ndarray) -> None:
     """Raise ``ValueError`` for NaN or infinite coordinates in the (n, 3) float64 ``origins`` or
-    ``directions``, or an all-zero direction (a ray without a direction has no first hit)."""
+    ``directions``, or an all-zero direction (a ray without a direction has no first hit).
+    A walk that tests each ray with :func:`unusable_ray` as it reads it, and leaves such rays
+    unwalked, may take the rays unchecked and call this only when it met one."""
     counts = on_threads(lambda first, end, _: _ray_defects(origins, directions, first, end), len(origins))
     bad_origins, bad_directions, zero_directions = np.sum(counts, axis=0)
     if bad_origins:

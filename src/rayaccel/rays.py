@@ -109,13 +109,16 @@ class AllHits(NamedTuple):
         return np.repeat(np.arange(len(self.offsets) - 1), np.diff(self.offsets))
 
 
-def prepare_rays(origins, directions, t_min=0.0, t_max=np.inf, *, compact: bool = False) -> RayBatch:
+def prepare_rays(origins, directions, t_min=0.0, t_max=np.inf, *, compact: bool = False,
+                 check: bool = True) -> RayBatch:
     """Validate and convert a ray batch once, at the Python boundary; a compact
     :class:`RayBatch` when ``compact``.
 
     Raises ``ValueError`` for NaN or infinite coordinates, mismatched shapes,
     NaN limits, and zero-length directions: a ray without a direction has no
-    defined first hit, so it is an error rather than a silent miss.
+    defined first hit, so it is an error rather than a silent miss. Without ``check``
+    the coordinates and directions are left for the walk to test
+    (:func:`rayaccel._validate.unusable_ray`), which saves reading them twice.
     """
     origins = as_points("origins", origins, allow_empty=True, check_finite=False)
     directions = as_points("directions", directions, allow_empty=True, check_finite=False)
@@ -126,7 +129,8 @@ def prepare_rays(origins, directions, t_min=0.0, t_max=np.inf, *, compact: bool 
             raise ValueError(
                 f"origins {origins.shape} and directions {directions.shape} must have the same shape"
             )
-    check_ray_arrays(origins, directions)
+    if check:
+        check_ray_arrays(origins, directions)
     n = len(origins)
     return RayBatch(origins, directions, as_per_ray("t_min", t_min, n, shared=compact),
                     as_per_ray("t_max", t_max, n, shared=compact), np.arange(0 if compact else n, dtype=np.int64))

@@ -7,7 +7,7 @@ import functools
 import numpy as np
 
 from .._jit import inline_kernel, share_among_threads, thread_count
-from .._validate import as_positive_int
+from .._validate import as_positive_int, check_ray_arrays
 from ..geometry.sphere import sphere_hit_coords
 from ..ray_order import coherent_batch, sorting_pays
 from ..rays import WORK_COLUMNS, AllHits, Camera, Hits, RayBatch, RayCounters, prepare_rays
@@ -54,13 +54,17 @@ def settled_before(best_prim, best_t, t_exit):
     return best_prim >= 0 and best_t < t_exit - EXIT_MARGIN * abs(t_exit)
 
 
-def walk_rays(walk, n_rays: int, *args) -> None:
+def walk_rays(walk, n_rays: int, *args) -> int:
     """Run a structure's ray walk, a :func:`rayaccel._jit.chunk_kernel` taking ``(ray_first,
     ray_end, tid, *args)``, over ``n_rays`` rays on threads: chunks of :data:`RAY_CHUNK` rays
     or more, about :data:`CHUNKS_PER_THREAD` per thread, handed out as threads free up; ``tid``
-    picks the chunk's rows of per-thread stacks and mailboxes."""
+    picks the chunk's rows of per-thread stacks and mailboxes. Returns the total of what the
+    walk returns for its chunks: the unusable rays it met, for a walk that tests its rays itself
+    (see :attr:`Accelerator._walk_checks_rays`), and 0 for one that returns nothing."""
     chunk = max(RAY_CHUNK, -(-n_rays // (CHUNKS_PER_THREAD * thread_count())))
-    share_among_threads(lambda first, end, tid: walk(first, end, tid, *args), n_rays, chunk)
+    found = []
+    share_among_threads(lambda first, end, tid: found.append(walk(first, end, tid, *args)), n_rays, chunk)
+    return sum(count for count in found if count is not None)
 
 
 class Accelerator(PointQueries):
@@ -69,7 +73,8 @@ class Accelerator(PointQueries):
     Subclasses set :attr:`method`, fill :attr:`build_seconds`, and implement
     :meth:`_trace` (one call of the structure's walk with a leaf action of
     :mod:`.actions`, ray ``i`` of the batch writing into row ``batch.hit_slot[i]``
-    of the action's arrays) and :meth:`_structure_stats`.
+    of the action's arrays; it returns the unusable rays met when :attr:`_walk_checks_rays`)
+    and :meth:`_structure_stats`.
     """
 
     method = "?"
@@ -306,14 +311,22 @@ class Accelerator(PointQueries):
         The kernels write every ray's row of ``t``, ``prim``, ``u`` and ``v``
         (:func:`.actions.finish_ray`), so these start empty; ``prim`` only when ``prim_only``
         (``t``, ``u``, ``v`` are then empty)."""
-        rays = prepare_rays(origins, directions, t_min, t_max, compact=True)
+        rays = prepare_rays(origins, directions, t_min, t_max, compact=True, check=not self._walk_checks_rays)
         n = len(rays.origins)
         t, u, v = (np.empty(0 if prim_only else n) for _ in range(3))
         prim = np.empty(n, dtype=np.int64)
         work = np.zeros((n if counters else 0, WORK_COLUMNS), dtype=np.int64)
-        if n:
-            self._trace(self._ordered(rays, reorder), any_hit, nearest_hit(t, prim, u, v), work)
+        if n and self._trace(self._ordered(rays, reorder), any_hit, nearest_hit(t, prim, u, v), work):
+            check_ray_arrays(rays.origins, rays.directions)
         return rays, t, prim, u, v, work
+
+    @property
+    def _walk_checks_rays(self) -> bool:
+        """Whether the closest-hit and any-hit walk tests every ray as it reads it, leaves those
+        :func:`rayaccel._validate.unusable_ray` refuses unwalked, and has :meth:`_trace` return how
+        many it met, so that :meth:`intersect` and :meth:`occluded` need not read the rays once
+        more beforehand to check them: false unless a structure says otherwise."""
+        return False
 
     @functools.cached_property
     def scene_box(self) -> tuple[np.ndarray, np.ndarray]:
@@ -329,7 +342,7 @@ class Accelerator(PointQueries):
         self.scene_box = bounds.scene_lo, bounds.scene_hi
         return bounds
 
-    def _trace(self, batch, any_hit, action, work) -> None:
+    def _trace(self, batch, any_hit, action, work) -> int | None:
         raise NotImplementedError
 
     @property

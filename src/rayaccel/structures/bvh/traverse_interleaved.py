@@ -44,9 +44,10 @@ from __future__ import annotations
 import numpy as np
 
 from ..._jit import chunk_kernel, inline_kernel, unsigned
+from ..._validate import unusable_rays
 from ...geometry.primitive import RAY_FLOATS, RAY_INTS, load_ray, ray_setup, store_ray
 from ...rays import ray_limit, result_row
-from ..actions import COUNT, NEAREST, finish_ray_in_mode
+from ..actions import COUNT, NEAREST, finish_misses_in_mode, finish_ray_in_mode
 from .traverse import enter_box
 from .traverse_wide import push_child, visit_leaf
 from .wide import child_count, child_link
@@ -128,7 +129,13 @@ def _walk(ray_first, ray_end, tid, root_box, records, links, prim_order, kind, g
     per-thread scratch: ``entry`` (a node's child entry distances), ``slot_ints`` and
     ``slot_floats`` (each ray's state, ``slots`` rows) and rows ``tid * slots`` to
     ``tid * slots + slots - 1`` of the stacks. The other arguments are those of
-    :mod:`.traverse_wide`'s walk, and so are the counters."""
+    :mod:`.traverse_wide`'s walk, and so are the counters. A chunk holding a ray that
+    :func:`rayaccel._validate.unusable_rays` counts is left unwalked, answered as misses;
+    returns that count."""
+    unusable = unusable_rays(origins, directions, ray_first, ray_end)
+    if unusable:
+        finish_misses_in_mode(mode, action, hit_slot, ray_first, ray_end)
+        return unusable
     nearest_first = not any_hit and mode == NEAREST
     child_entry = entry[tid]
     ints = slot_ints[tid]
@@ -199,6 +206,7 @@ def _walk(ray_first, ray_end, tid, root_box, records, links, prim_order, kind, g
             _finish(mode, action, work, result_row(hit_slot, i), best_t, ints[slot, _PRIM], floats[slot, _BEST_U],
                     floats[slot, _BEST_V], ints[slot, _NODES], ints[slot, _TESTS], ints[slot, _LEAVES])
             ints[slot, _RAY] = -1
+    return 0
 
 
 @chunk_kernel
@@ -207,9 +215,9 @@ def interleaved_nearest_kernel(ray_first, ray_end, tid, root_box, records, links
                                slots, slot_ints, slot_floats, action, work):
     """The closest-hit and any-hit walk (an action of mode ``NEAREST``, the other modes' code
     pruned before it is compiled, as in :func:`.traverse_wide.wide_nearest_kernel`)."""
-    _walk(ray_first, ray_end, tid, root_box, records, links, prim_order, kind, geom, origins, directions, t_min,
-          t_max, hit_slot, any_hit, stack_link, stack_count, stack_t, entry, slots, slot_ints, slot_floats, NEAREST,
-          action, work)
+    return _walk(ray_first, ray_end, tid, root_box, records, links, prim_order, kind, geom, origins, directions,
+                 t_min, t_max, hit_slot, any_hit, stack_link, stack_count, stack_t, entry, slots, slot_ints,
+                 slot_floats, NEAREST, action, work)
 
 
 @chunk_kernel
@@ -219,9 +227,9 @@ def interleaved_count_kernel(ray_first, ray_end, tid, root_box, records, links, 
     """The counting walk (an action of mode ``COUNT``), the other modes' code pruned: counting
     2**20 incoherent rays through the full dragon took 317 against 361 ms in
     :func:`interleaved_crossings_kernel` on two threads, 663 against 749 ms on one."""
-    _walk(ray_first, ray_end, tid, root_box, records, links, prim_order, kind, geom, origins, directions, t_min,
-          t_max, hit_slot, any_hit, stack_link, stack_count, stack_t, entry, slots, slot_ints, slot_floats, COUNT,
-          action, work)
+    return _walk(ray_first, ray_end, tid, root_box, records, links, prim_order, kind, geom, origins, directions,
+                 t_min, t_max, hit_slot, any_hit, stack_link, stack_count, stack_t, entry, slots, slot_ints,
+                 slot_floats, COUNT, action, work)
 
 
 @chunk_kernel
@@ -229,7 +237,7 @@ def interleaved_crossings_kernel(ray_first, ray_end, tid, root_box, records, lin
                                  directions, t_min, t_max, hit_slot, any_hit, stack_link, stack_count, stack_t, entry,
                                  slots, slot_ints, slot_floats, action, work):
     """The walk for the other actions (listing, winding), compiled at their first use."""
-    _walk(ray_first, ray_end, tid, root_box, records, links, prim_order, kind, geom, origins, directions, t_min,
-          t_max, hit_slot, any_hit, stack_link, stack_count, stack_t, entry, slots, slot_ints, slot_floats,
-          action.mode, action, work)
+    return _walk(ray_first, ray_end, tid, root_box, records, links, prim_order, kind, geom, origins, directions,
+                 t_min, t_max, hit_slot, any_hit, stack_link, stack_count, stack_t, entry, slots, slot_ints,
+                 slot_floats, action.mode, action, work)
 

@@ -61,6 +61,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..._jit import chunk_kernel, inline_kernel, unsigned
+from ..._validate import unusable_rays
 from ...geometry.gather import corner
 from ...geometry.kinds import TRIANGLE
 from ...geometry.primitive import ray_setup
@@ -258,15 +259,24 @@ def _packet_walk(ray_first, ray_end, tid, records, links, prim_order, kind, geom
     (the last one partial), with the stacks, child entries, lane state and packet bounds of
     row ``tid``, each stack entry's lanes kept above its primitive count in ``stack_count``;
     ``geom`` in leaf order, ``links`` the records seen as int32 (see :mod:`.traverse_wide`).
-    Each primitive a ray meets gets the leaf action of ``mode`` (:mod:`..actions`)."""
+    Each primitive a ray meets gets the leaf action of ``mode`` (:mod:`..actions`). The rays of
+    each span are checked first (:func:`rayaccel._validate.unusable_rays`, read from memory
+    here and from the first-level cache by the walk); a span holding an unusable ray is
+    left unwalked, answered as misses. Returns how many unusable rays there were."""
     child_entry = entry[tid]
     state = lanes_state[tid]
     bounds = bounds_state[tid]
     best_prim = lanes_prim[tid]
     nearest_first = not any_hit and mode == NEAREST
     lane_triangles = mode == NEAREST and (by_lane or not any_hit) and kind == TRIANGLE
+    unusable = 0
     for span_first in range(ray_first, ray_end, SPAN):
         span_end = min(span_first + SPAN, ray_end)
+        unusable_here = unusable_rays(origins, directions, span_first, span_end)
+        if unusable_here:
+            unusable += unusable_here
+            finish_misses_in_mode(mode, action, hit_slot, span_first, span_end)
+            continue
         if not by_lane and span_end - span_first == SPAN and \
                 _root_culls_span(records, origins, directions, t_min, t_max, span_first, bounds, child_entry):
             finish_misses_in_mode(mode, action, hit_slot, span_first, span_end)
@@ -379,6 +389,7 @@ def _packet_walk(ray_first, ray_end, tid, records, links, prim_order, kind, geom
             for r in range(n_lanes):
                 finish_ray_in_mode(mode, action, result_row(hit_slot, packet_first + r), state[_BEST + r],
                                    best_prim[r], state[_U + r], state[_V + r])
+    return unusable
 
 
 @chunk_kernel
@@ -387,9 +398,9 @@ def wide_packet_kernel(ray_first, ray_end, tid, records, links, prim_order, kind
                        bounds_state, lanes_prim, action):
     """The closest-hit and any-hit packet walk (an action of mode ``NEAREST``; the other modes'
     code is pruned before it is compiled, as in :func:`.traverse_wide.wide_nearest_kernel`)."""
-    _packet_walk(ray_first, ray_end, tid, records, links, prim_order, kind, geom, origins, directions, t_min, t_max,
-                 hit_slot, any_hit, stack_link, stack_count, stack_t, entry, lanes_state, bounds_state,
-                 lanes_prim, False, NEAREST, action)
+    return _packet_walk(ray_first, ray_end, tid, records, links, prim_order, kind, geom, origins, directions,
+                        t_min, t_max, hit_slot, any_hit, stack_link, stack_count, stack_t, entry, lanes_state,
+                        bounds_state, lanes_prim, False, NEAREST, action)
 
 
 @chunk_kernel
@@ -397,9 +408,9 @@ def wide_packet_crossings_kernel(ray_first, ray_end, tid, records, links, prim_o
                                  directions, t_min, t_max, hit_slot, any_hit, stack_link, stack_count, stack_t, entry,
                                  lanes_state, bounds_state, lanes_prim, action):
     """The packet walk for the other actions (counting, listing), compiled at their first use."""
-    _packet_walk(ray_first, ray_end, tid, records, links, prim_order, kind, geom, origins, directions, t_min, t_max,
-                 hit_slot, any_hit, stack_link, stack_count, stack_t, entry, lanes_state, bounds_state,
-                 lanes_prim, False, action.mode, action)
+    return _packet_walk(ray_first, ray_end, tid, records, links, prim_order, kind, geom, origins, directions,
+                        t_min, t_max, hit_slot, any_hit, stack_link, stack_count, stack_t, entry, lanes_state,
+                        bounds_state, lanes_prim, False, action.mode, action)
 
 
 @chunk_kernel
@@ -408,9 +419,9 @@ def lane_packet_kernel(ray_first, ray_end, tid, records, links, prim_order, kind
                        bounds_state, lanes_prim, action):
     """The closest-hit and any-hit walk of packets whose rays are tested lane by lane (the other
     modes' code pruned, as in :func:`wide_packet_kernel`)."""
-    _packet_walk(ray_first, ray_end, tid, records, links, prim_order, kind, geom, origins, directions, t_min, t_max,
-                 hit_slot, any_hit, stack_link, stack_count, stack_t, entry, lanes_state, bounds_state,
-                 lanes_prim, True, NEAREST, action)
+    return _packet_walk(ray_first, ray_end, tid, records, links, prim_order, kind, geom, origins, directions,
+                        t_min, t_max, hit_slot, any_hit, stack_link, stack_count, stack_t, entry, lanes_state,
+                        bounds_state, lanes_prim, True, NEAREST, action)
 
 
 @chunk_kernel
@@ -419,6 +430,6 @@ def lane_packet_crossings_kernel(ray_first, ray_end, tid, records, links, prim_o
                                  lanes_state, bounds_state, lanes_prim, action):
     """The walk of packets tested lane by lane for the other actions (counting, listing), compiled
     at their first use."""
-    _packet_walk(ray_first, ray_end, tid, records, links, prim_order, kind, geom, origins, directions, t_min, t_max,
-                 hit_slot, any_hit, stack_link, stack_count, stack_t, entry, lanes_state, bounds_state,
-                 lanes_prim, True, action.mode, action)
+    return _packet_walk(ray_first, ray_end, tid, records, links, prim_order, kind, geom, origins, directions,
+                        t_min, t_max, hit_slot, any_hit, stack_link, stack_count, stack_t, entry, lanes_state,
+                        bounds_state, lanes_prim, True, action.mode, action)
