@@ -76,7 +76,9 @@ class Action(NamedTuple):
     """What a walk does with the primitives it meets, and where it writes (per output row ``r``).
 
     ``mode``: NEAREST, COUNT, LIST or WINDING. NEAREST: ``t``, ``prim``, ``u``, ``v`` (n,), the
-    best hit of row ``r`` (:func:`finish_ray` writes every row). COUNT: ``count`` (n,) int64, crossings of row
+    best hit of row ``r`` (:func:`finish_ray` writes every row), and ``geom`` (n,) int64, when
+    not empty, 0 where row ``r`` hit and -1 where it missed (``Hits.geom`` of a plain mesh or
+    sphere set). COUNT: ``count`` (n,) int64, crossings of row
     ``r`` (starting at 0); WINDING: signed crossings there, in half units. LIST: row ``r``
     fills ``t, prim, u, v[offsets[r]:offsets[r + 1]]``, ``count[r]`` (starting at 0) of them
     so far; or, when ``offsets`` holds one number ``size``, the ``size`` slots ``r, r + n, r +
@@ -90,40 +92,44 @@ class Action(NamedTuple):
     v: np.ndarray
     count: np.ndarray
     offsets: np.ndarray
+    geom: np.ndarray
 
 
 _NO_FLOATS = np.zeros(0)
 _NO_INTS = np.zeros(0, dtype=np.int64)
 
 
-def nearest_hit(t, prim, u, v) -> Action:
+def nearest_hit(t, prim, u, v, geom=_NO_INTS) -> Action:
     """The closest-hit (or any-hit) action writing into ``t``, ``prim``, ``u``, ``v`` (n,), or into
-    ``prim`` only when the three others are empty."""
-    return Action(NEAREST, t, prim, u, v, _NO_INTS, _NO_INTS)
+    ``prim`` only when the three others are empty, and into ``geom`` (n,) when given: written by
+    the walk's threads as each ray ends rather than by ``np.minimum(prim, 0)`` after the walk,
+    forest camera rays' closest hit ran 1.04 and 1.08 times as fast (two runs of processes
+    alternating with the commit before, 2**20 rays, two threads), incoherent rays' 0.95 and 1.03."""
+    return Action(NEAREST, t, prim, u, v, _NO_INTS, _NO_INTS, geom)
 
 
 def hit_count(count) -> Action:
     """The counting action adding each row's crossings into ``count`` (n,) int64 zeros."""
-    return Action(COUNT, _NO_FLOATS, _NO_INTS, _NO_FLOATS, _NO_FLOATS, count, _NO_INTS)
+    return Action(COUNT, _NO_FLOATS, _NO_INTS, _NO_FLOATS, _NO_FLOATS, count, _NO_INTS, _NO_INTS)
 
 
 def signed_crossings(count) -> Action:
     """The action adding each row's signed crossings, in half units, into ``count`` (n,) int64
     zeros."""
-    return Action(WINDING, _NO_FLOATS, _NO_INTS, _NO_FLOATS, _NO_FLOATS, count, _NO_INTS)
+    return Action(WINDING, _NO_FLOATS, _NO_INTS, _NO_FLOATS, _NO_FLOATS, count, _NO_INTS, _NO_INTS)
 
 
 def hit_list(offsets, fill, t, prim, u, v) -> Action:
     """The listing action: row ``r`` fills ``t, prim, u, v[offsets[r]:offsets[r + 1]]``, ``fill`` (n,)
     int64 zeros counting how many so far."""
-    return Action(LIST, t, prim, u, v, fill, offsets)
+    return Action(LIST, t, prim, u, v, fill, offsets, _NO_INTS)
 
 
 def hit_slots(size, fill, t, prim, u, v) -> Action:
     """The listing action with ``size`` slots for each of the n rows, slot ``j`` of row ``r`` at
     ``j * n + r`` in ``t, prim, u, v`` (n * size,): the rows' first slots lie side by side, so
     that rows with few hits, most of them in most batches, leave the later slots untouched."""
-    return Action(LIST, t, prim, u, v, fill, np.array([size], dtype=np.int64))
+    return Action(LIST, t, prim, u, v, fill, np.array([size], dtype=np.int64), _NO_INTS)
 
 
 @inline_kernel
@@ -242,6 +248,8 @@ def finish_ray_in_mode(mode, action, row, best_t, best_prim, best_u, best_v):
     """:func:`finish_ray` with the action's mode given apart (see :func:`visit_prim_in_mode`)."""
     if mode == NEAREST:
         action.prim[row] = best_prim
+        if action.geom.shape[0] > 0:
+            action.geom[row] = min(best_prim, 0)
         if action.t.shape[0] > 0:
             hit = best_prim >= 0
             t = best_t if hit else np.inf
@@ -257,6 +265,9 @@ def finish_misses_in_mode(mode, action, hit_slot, first, end):
     """:func:`finish_ray_in_mode` for the rays ``first`` to ``end - 1`` of a batch, each of which
     missed."""
     if mode == NEAREST:
+        if action.geom.shape[0] > 0:
+            for i in range(first, end):
+                action.geom[result_row(hit_slot, i)] = -1
         if action.t.shape[0] > 0:
             for i in range(first, end):
                 row = result_row(hit_slot, i)

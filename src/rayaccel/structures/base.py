@@ -124,11 +124,11 @@ class Accelerator(PointQueries):
 
     def _intersect(self, origins, directions, t_min, t_max, any_hit, counters, reorder) -> Hits:
         """:meth:`intersect` on array inputs (scenes of instances override it)."""
-        rays, t, prim, u, v, work = self._cast(origins, directions, t_min, t_max, any_hit, counters, reorder)
+        rays, t, prim, u, v, geom, work = self._cast(origins, directions, t_min, t_max, any_hit, counters, reorder)
         if self.scene.kind == SPHERE:
             sphere_hit_coords(self.scene.geometry, rays.origins, rays.directions, t, prim, u, v)
         ray_counters = RayCounters(*(work[:, k].copy() for k in range(WORK_COLUMNS))) if counters else None
-        return Hits(t, prim, u, v, ray_counters, np.minimum(prim, 0))
+        return Hits(t, prim, u, v, ray_counters, geom)
 
     def occluded(self, origins, directions, t_min=0.0, t_max=np.inf, *, reorder=True) -> np.ndarray:
         """(n,) bool: whether anything lies on each ray within ``[t_min, t_max]``; a lazy Dask
@@ -307,18 +307,18 @@ class Accelerator(PointQueries):
         )
 
     def _cast(self, origins, directions, t_min, t_max, any_hit, counters, reorder, prim_only=False):
-        """Validate the rays and trace them: ``(rays, t, prim, u, v, work)``, each in the order given.
-        The kernels write every ray's row of ``t``, ``prim``, ``u`` and ``v``
+        """Validate the rays and trace them: ``(rays, t, prim, u, v, geom, work)``, each in the order
+        given. The kernels write every ray's row of ``t``, ``prim``, ``u``, ``v`` and ``geom``
         (:func:`.actions.finish_ray`), so these start empty; ``prim`` only when ``prim_only``
-        (``t``, ``u``, ``v`` are then empty)."""
+        (the others are then empty)."""
         rays = prepare_rays(origins, directions, t_min, t_max, compact=True, check=not self._walk_checks_rays)
         n = len(rays.origins)
         t, u, v = (np.empty(0 if prim_only else n) for _ in range(3))
-        prim = np.empty(n, dtype=np.int64)
+        prim, geom = np.empty(n, dtype=np.int64), np.empty(0 if prim_only else n, dtype=np.int64)
         work = np.zeros((n if counters else 0, WORK_COLUMNS), dtype=np.int64)
-        if n and self._trace(self._ordered(rays, reorder), any_hit, nearest_hit(t, prim, u, v), work):
+        if n and self._trace(self._ordered(rays, reorder), any_hit, nearest_hit(t, prim, u, v, geom), work):
             check_ray_arrays(rays.origins, rays.directions)
-        return rays, t, prim, u, v, work
+        return rays, t, prim, u, v, geom, work
 
     @property
     def _walk_checks_rays(self) -> bool:
