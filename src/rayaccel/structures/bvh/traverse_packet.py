@@ -260,8 +260,8 @@ def _packet_walk(ray_first, ray_end, tid, records, links, prim_order, kind, geom
     row ``tid``, each stack entry's lanes kept above its primitive count in ``stack_count``;
     ``geom`` in leaf order, ``links`` the records seen as int32 (see :mod:`.traverse_wide`).
     Each primitive a ray meets gets the leaf action of ``mode`` (:mod:`..actions`). The rays of
-    each span are checked first (:func:`rayaccel._validate.unusable_rays`, read from memory
-    here and from the first-level cache by the walk); a span holding an unusable ray is
+    each span are checked first (:func:`rayaccel._validate.unusable_rays`), just before the walk
+    reads them again; a span holding an unusable ray is
     left unwalked, answered as misses. Returns how many unusable rays there were."""
     child_entry = entry[tid]
     state = lanes_state[tid]
