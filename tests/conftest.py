@@ -84,11 +84,11 @@ def axis_parallel_rays(scene, n, seed=0):
 
 
 def assert_same_hits(reference, hits):
-    """Hit for hit: the same primitive, the same distance and barycentrics; on a plain mesh or
-    sphere set (not a scene of instances) ``geom`` 0 on a hit, -1 on a miss."""
+    """Hit for hit: the same primitive, the same distance and barycentrics; where both carry
+    ``geom`` and the scene is a plain mesh or sphere set, 0 on a hit and -1 on a miss."""
     np.testing.assert_array_equal(hits.prim, reference.prim)
     hit = reference.prim >= 0
-    if isinstance(reference.geom, np.ndarray) and not (reference.geom > 0).any():
+    if isinstance(hits.geom, np.ndarray) and isinstance(reference.geom, np.ndarray) and not (reference.geom > 0).any():
         np.testing.assert_array_equal(hits.geom, np.where(hit, 0, -1))
     np.testing.assert_allclose(hits.t[hit], reference.t[hit], rtol=1e-12, atol=0)
     np.testing.assert_allclose(hits.u[hit], reference.u[hit], rtol=1e-9, atol=1e-12)
