@@ -75,12 +75,13 @@ def _areas(box):
 def _worst_nodes(box, left, right, parent, root, batch):
     """The ``batch`` nodes that look worst placed, worst first: by the node's area times its
     area over its smaller child's and over its children's sum (leaves: their area); the root
-    and its children, which cannot move, left out. Also the inner nodes' total area."""
+    and its children, which cannot move, left out (a measure that overflows, on huge boxes, is
+    infinite: the worst). Also the inner nodes' total area."""
     area = _areas(box)
     inner = left >= 0
     child_a = area[np.where(inner, left, 0)]
     child_b = area[np.where(inner, right, 0)]
-    with np.errstate(divide="ignore", invalid="ignore"):
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         measure = np.where(inner, area ** 3 / np.maximum(np.minimum(child_a, child_b) * (child_a + child_b), 1e-300),
                            area)
     measure[root] = -1.0
