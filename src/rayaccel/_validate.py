@@ -49,19 +49,9 @@ def unusable_rays(origins, directions, first, end):
 
 
 @kernel
-def _ray_defects(origins, directions, first, end):
-    """How many of the rows ``first:end`` of ``origins`` and of ``directions`` hold a NaN or
-    infinite coordinate, and how many of those rows of ``directions`` are all zero."""
-    bad_origins = 0
-    bad_directions = 0
-    zero_directions = 0
-    for i in range(first, end):
-        ox, oy, oz = origins[i, 0], origins[i, 1], origins[i, 2]
-        dx, dy, dz = directions[i, 0], directions[i, 1], directions[i, 2]
-        bad_origins += ox * 0.0 + oy * 0.0 + oz * 0.0 != 0.0
-        bad_directions += dx * 0.0 + dy * 0.0 + dz * 0.0 != 0.0
-        zero_directions += (dx == 0.0) & (dy == 0.0) & (dz == 0.0)
-    return bad_origins, bad_directions, zero_directions
+def _count_unusable_rays(origins, directions, first, end):
+    """:func:`unusable_rays` as a kernel of its own, for :func:`check_ray_arrays`."""
+    return unusable_rays(origins, directions, first, end)
 
 
 def _nonfinite_error(name: str, array: np.ndarray, count: int) -> ValueError:
@@ -73,14 +63,19 @@ def _nonfinite_error(name: str, array: np.ndarray, count: int) -> ValueError:
 def check_ray_arrays(origins: np.ndarray, directions: np.ndarray) -> None:
     """Raise ``ValueError`` for NaN or infinite coordinates in the (n, 3) float64 ``origins`` or
     ``directions``, or an all-zero direction (a ray without a direction has no first hit).
-    A walk that tests each ray with :func:`unusable_ray` as it reads it, and leaves such rays
-    unwalked, may take the rays unchecked and call this only when it met one."""
-    counts = on_threads(lambda first, end, _: _ray_defects(origins, directions, first, end), len(origins))
-    bad_origins, bad_directions, zero_directions = np.sum(counts, axis=0)
+    One pass counts the rays :func:`unusable_ray` refuses, the test the walks that check their
+    own rays make; only when there are some are the kinds of defect told apart. Such a walk
+    leaves the rays it refuses unwalked and may take the rays unchecked, calling this only
+    when it met one."""
+    if not sum(on_threads(lambda first, end, _: _count_unusable_rays(origins, directions, first, end), len(origins))):
+        return
+    bad_origins = int((~np.isfinite(origins).all(axis=1)).sum())
     if bad_origins:
         raise _nonfinite_error("origins", origins, bad_origins)
+    bad_directions = int((~np.isfinite(directions).all(axis=1)).sum())
     if bad_directions:
         raise _nonfinite_error("directions", directions, bad_directions)
+    zero_directions = int((directions == 0.0).all(axis=1).sum())
     if zero_directions:
         raise ValueError(f"{zero_directions} ray direction(s) have zero length "
                          f"(first at index {first_zero_row(directions)})")
