@@ -246,7 +246,7 @@ def _load_hybrid(accel, meta, arrays):
     lo, hi, res, size, first, prims = _uniform_cells(arrays, "hybrid", len(accel.scene), "hybrid grid")
     n_cells = int(np.prod(res))
     root = c.array(arrays, "hybrid.cell_root", np.int32, (n_cells,))
-    node_box = c.finite("hybrid.node_box", c.array(arrays, "hybrid.node_box", np.float64, (None, 6)))
+    node_box = c.finite("hybrid.node_box", c.array(arrays, "hybrid.node_box", np.float32, (None, 6)))
     n_nodes = len(node_box)
     node_first = c.array(arrays, "hybrid.node_first", np.int32, (n_nodes,))
     node_count = c.array(arrays, "hybrid.node_count", np.int32, (n_nodes,))

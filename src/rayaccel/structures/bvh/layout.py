@@ -40,7 +40,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-__all__ = ["BvhArrays", "node_rows", "pack_nodes"]
+__all__ = ["BvhArrays", "node_rows", "float32_boxes", "pack_nodes"]
 
 
 class BvhArrays(NamedTuple):
@@ -76,15 +76,22 @@ def node_rows(per_node: np.ndarray) -> np.ndarray:
     return rows
 
 
+def float32_boxes(node_box: np.ndarray) -> np.ndarray:
+    """``node_box`` (n, 6), lo then hi, rounded outwards to float32: each box contains the
+    exact one, so that a slab test of the rounded box culls nothing the exact box holds."""
+    boxes = node_box.astype(np.float32)
+    lo, hi = boxes[:, :3], boxes[:, 3:]
+    lo[...] = np.where(lo > node_box[:, :3], np.nextafter(lo, np.float32(-np.inf)), lo)
+    hi[...] = np.where(hi < node_box[:, 3:], np.nextafter(hi, np.float32(np.inf)), hi)
+    return boxes
+
+
 def pack_nodes(node_box: np.ndarray, node_first: np.ndarray, node_count: np.ndarray) -> np.ndarray:
     """The traversal's float32 records, (n_nodes + 1, 8) in :func:`node_rows` order: the box
     rounded outwards, then first and count, with child links shifted to the record numbering
     (leaf offsets into ``prim_order`` are not shifted)."""
     records = np.empty((len(node_first), 8), dtype=np.float32)
-    lo = node_box[:, :3].astype(np.float32)
-    hi = node_box[:, 3:].astype(np.float32)
-    records[:, :3] = np.where(lo > node_box[:, :3], np.nextafter(lo, np.float32(-np.inf)), lo)
-    records[:, 3:6] = np.where(hi < node_box[:, 3:], np.nextafter(hi, np.float32(np.inf)), hi)
+    records[:, :6] = float32_boxes(node_box)
     links = records.view(np.int32)
     links[:, 6] = np.where(node_count == 0, node_first + 1, node_first)
     links[:, 7] = node_count

@@ -9,6 +9,9 @@ need many more cells -- are searched by a BVH instead. The grid is built as in
 then get a BVH over their references with the top-down binned SAH builder of
 :mod:`..bvh.build_top_down`, all cells in parallel, each into its own block
 of node slots; the hybrid shares that builder's compiled kernel with ``bvh-binned``.
+The blocks, sized for leaves of one reference, are then compacted into one array
+of the nodes the trees use, each tree depth first with siblings side by side, and
+the boxes rounded outwards to float32 (:func:`_compact_forest`).
 """
 
 from __future__ import annotations
@@ -17,8 +20,9 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
-from ..._jit import thread_count
+from ..._jit import kernel, thread_count
 from ..bvh.build_top_down import SAH_BINNED, SUBTREE_KERNELS
+from ..bvh.layout import float32_boxes
 from ..bvh.nodes import node_depths
 from ..grid.build_uniform import build_density_grid
 from .layout import GridBvhArrays
@@ -47,6 +51,54 @@ def _build_cell_bvhs(lo, hi, centroid, order, row_first, row_end, cell_root, max
                                            unused), shares))
 
 
+@kernel
+def _depth_first_slots(cell_root, node_first, node_count):
+    """The slots the cells' trees use, in their new order: each tree depth first from its root,
+    a node's two children side by side; returns ``(new_slot, old_slot)``, the new slot of every
+    old one (-1 for unused) and the old slot at every new one."""
+    new_slot = np.full(len(node_first), -1, dtype=np.int64)
+    old_slot = np.empty(len(node_first), dtype=np.int64)
+    stack = np.empty(len(node_first) + 1, dtype=np.int64)
+    n = 0
+    for cell in range(len(cell_root)):
+        root = cell_root[cell]
+        if root < 0:
+            continue
+        new_slot[root] = n
+        old_slot[n] = root
+        n += 1
+        stack[0] = root
+        sp = 1
+        while sp > 0:
+            sp -= 1
+            node = stack[sp]
+            if node_count[node] == 0:
+                left = node_first[node]
+                for k in range(2):
+                    new_slot[left + k] = n
+                    old_slot[n] = left + k
+                    n += 1
+                stack[sp] = left + 1
+                stack[sp + 1] = left
+                sp += 2
+    return new_slot, old_slot[:n]
+
+
+def _compact_forest(cell_root, node_box, node_first, node_count):
+    """The forest without the slots its trees leave unused, boxes in float32 rounded outwards:
+    ``(cell_root, node_box, node_first, node_count)`` renumbered by :func:`_depth_first_slots`.
+    Leaves keep their offsets into ``cell_prims``."""
+    new_slot, old_slot = _depth_first_slots(cell_root, node_first, node_count)
+    count = node_count[old_slot]
+    first = node_first[old_slot]
+    inner = count == 0
+    first = np.where(inner, new_slot[np.where(inner, first, 0)], first).astype(np.int32)
+    root = np.full_like(cell_root, -1)
+    with_tree = cell_root >= 0
+    root[with_tree] = new_slot[cell_root[with_tree]]
+    return root, float32_boxes(node_box[old_slot]), first, count
+
+
 def build_grid_bvh(bounds, kind, geom, density, threshold, max_leaf_size, bins, traversal_cost, intersection_cost,
                    exact, pad) -> tuple[GridBvhArrays, int]:
     """Build the hybrid; returns the arrays and the deepest BVH's depth. Node boxes are grown by ``pad``."""
@@ -71,6 +123,8 @@ def build_grid_bvh(bounds, kind, geom, density, threshold, max_leaf_size, bins, 
                          node_count)
         node_box[:, :3] -= pad
         node_box[:, 3:] += pad
+    cell_root, node_box, node_first, node_count = _compact_forest(cell_root, node_box, node_first, node_count)
+    if len(dense):
         depth = int(node_depths(node_first, node_count).max())
     arrays = GridBvhArrays(grid.lo, grid.hi, grid.res, grid.cell_size, grid.cell_first, order.astype(np.int32),
                            cell_root, node_box, node_first, node_count)

@@ -9,8 +9,9 @@ offset into ``cell_prims``; ``node_count`` is 0 for inner nodes):
 * ``cell_root`` (n_cells,) int32: -1 for a cell whose references are tested
   one by one, else the root of the cell's BVH, whose leaves index the cell's
   own row of ``cell_prims`` (reordered into leaf order);
-* ``node_box`` (n_nodes, 6) float64, ``node_first``, ``node_count``
-  (n_nodes,) int32: the forest.
+* ``node_box`` (n_nodes, 6) float32, rounded outwards, ``node_first``,
+  ``node_count`` (n_nodes,) int32: the forest, each tree depth first with a
+  node's children side by side.
 
 To walk it: 3D-DDA through the grid; in a cell with a BVH, a stack traversal
 of that BVH replaces the loop over the cell's row.
@@ -35,7 +36,7 @@ class GridBvhArrays(NamedTuple):
     cell_first: np.ndarray  # (n_cells + 1,) int32
     cell_prims: np.ndarray  # (n_references,) int32
     cell_root: np.ndarray   # (n_cells,) int32
-    node_box: np.ndarray    # (n_nodes, 6) float64
+    node_box: np.ndarray    # (n_nodes, 6) float32
     node_first: np.ndarray  # (n_nodes,) int32
     node_count: np.ndarray  # (n_nodes,) int32
 
