@@ -15,6 +15,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import rayaccel as ra
+from rayaccel.structures.grid.mailbox import MAX_STAMP, MailboxPool
 
 GRID_OPTIONS = [
     {},
@@ -142,3 +143,21 @@ def test_random_scenes_property(n, seed, density, exact):
     reference = ra.build(scene, "none").intersect(origins, directions)
     grid = ra.build(scene, "grid", density=density, insert="exact" if exact else "bbox")
     assert_same_hits(reference, grid.intersect(origins, directions))
+
+
+def test_mailbox_stamps_start_again_when_they_run_out(small_dragon):
+    """The int32 stamps start again from 0 when a call would pass MAX_STAMP, and the mailbox an
+    earlier call stamped (0 to n - 1, as the new call's) is cleared before it is lent again:
+    the call after the wrap tests and skips exactly what a fresh structure does."""
+    origins, directions = camera_rays(small_dragon, 32)
+    grid = ra.build(small_dragon, "grid", density=20)
+    first = grid.intersect(origins, directions, counters=True)
+    assert first.counters.mailbox_skips.sum() > 0
+    grid.mailboxes._next_stamp = MAX_STAMP - len(origins) // 2
+    wrapped = grid.intersect(origins, directions, counters=True)
+    assert grid.mailboxes._next_stamp == len(origins)
+    assert_same_hits(wrapped, first)
+    np.testing.assert_array_equal(wrapped.counters.tests, first.counters.tests)
+    np.testing.assert_array_equal(wrapped.counters.mailbox_skips, first.counters.mailbox_skips)
+    with pytest.raises(ValueError, match="split the batch"), MailboxPool(10).lend(MAX_STAMP + 1):
+        pass
