@@ -56,12 +56,11 @@ def test_agrees_with_brute_force(scene_name, method, options, request):
 @pytest.mark.parametrize("scene_name", ["small_dragon", "bunny", "spheres"])
 def test_references_read_their_primitives_in_reference_order(method, scene_name, request):
     """The kd-tree and the grid-BVH hybrid test a leaf's or a cell's primitives from a copy laid
-    out in the order of their references: the grid-BVH in the smallest exact layout (float32
-    rows for the dragon's PLY, vertex indices for the bunny's OBJ), the kd-tree, whose references
-    repeat triangles, always in vertex indices; spheres as rows. Each counts that copy instead
-    of the scene's float64 rows among the bytes a query reads."""
+    out in the order of their references: triangles, which their references repeat, always in
+    vertex indices (float32 rows would repeat them whole), spheres as rows. Each counts that
+    copy instead of the scene's float64 rows among the bytes a query reads."""
     scene = request.getfixturevalue(scene_name)
-    layout = "rows" if scene_name == "spheres" or (scene_name == "small_dragon" and method == "grid-bvh") else "indexed"
+    layout = "rows" if scene_name == "spheres" else "indexed"
     accel = ra.build(scene, method)
     refs = accel.kd.leaf_prims if method == "kdtree" else accel.hybrid.cell_prims
     expected = scene.geometry[refs]

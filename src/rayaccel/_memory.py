@@ -13,7 +13,11 @@ from __future__ import annotations
 
 import os
 
-__all__ = ["available_bytes", "require_memory"]
+import numpy as np
+
+__all__ = ["available_bytes", "require_memory", "cache_line_aligned"]
+
+CACHE_LINE = 64
 
 
 def available_bytes() -> int:
@@ -35,3 +39,13 @@ def require_memory(what: str, needed: float) -> None:
     if needed > free:
         raise MemoryError(f"{what} needs about {needed / 2**30:,.1f} GiB of memory, and "
                           f"{free / 2**30:,.1f} GiB are available")
+
+
+def cache_line_aligned(shape: tuple[int, int], dtype) -> np.ndarray:
+    """A zeroed C-contiguous array whose first byte starts a 64-byte cache line, so that
+    records of 32 or 64 bytes never straddle two lines."""
+    dtype = np.dtype(dtype)
+    size = int(np.prod(shape)) * dtype.itemsize
+    raw = np.zeros(size + CACHE_LINE, dtype=np.uint8)
+    offset = (-raw.ctypes.data) % CACHE_LINE
+    return raw[offset:offset + size].view(dtype).reshape(shape)

@@ -40,6 +40,8 @@ from typing import NamedTuple
 
 import numpy as np
 
+from ..._memory import cache_line_aligned
+
 __all__ = ["BvhArrays", "node_rows", "float32_boxes", "pack_nodes"]
 
 
@@ -67,10 +69,7 @@ def node_rows(per_node: np.ndarray) -> np.ndarray:
     root, row 1 padding (zeros), node k >= 1 row k + 1; on a 64-byte boundary, so that
     with 32-byte rows every sibling pair shares one cache line."""
     n, m = per_node.shape
-    size = (n + 1) * m * per_node.itemsize
-    raw = np.zeros(size + 64, dtype=np.uint8)
-    offset = (-raw.ctypes.data) % 64
-    rows = raw[offset:offset + size].view(per_node.dtype).reshape(n + 1, m)
+    rows = cache_line_aligned((n + 1, m), per_node.dtype)
     rows[0] = per_node[0]
     rows[2:] = per_node[1:]
     return rows

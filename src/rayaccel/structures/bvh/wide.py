@@ -34,6 +34,7 @@ import numpy as np
 from numba import prange
 
 from ..._jit import inline_kernel, kernel, parallel_kernel, unsigned
+from ..._memory import cache_line_aligned
 
 __all__ = ["WIDTH", "LINK", "COUNT", "child_link", "child_count", "wide_tree", "wide_records", "wide_depth"]
 
@@ -43,7 +44,6 @@ LINK = 6 * WIDTH
 COUNT = 7 * WIDTH
 """Column of child 0's primitive count in a record."""
 UNUSED = -1
-_RECORD_BYTES = 4 * 8 * WIDTH
 
 
 @inline_kernel
@@ -158,9 +158,7 @@ def wide_records(node_box: np.ndarray, node_first: np.ndarray, node_count: np.nd
     not the tree (full dragon: the collapse is about a third of the records' time)."""
     slots, child_wide = wide_tree(node_box, node_first, node_count) if tree is None else tree
     n_wide = len(slots)
-    raw = np.zeros(n_wide * _RECORD_BYTES + 64, dtype=np.uint8)
-    offset = (-raw.ctypes.data) % 64
-    records = raw[offset:offset + n_wide * _RECORD_BYTES].view(np.float32).reshape(n_wide, 8 * WIDTH)
+    records = cache_line_aligned((n_wide, 8 * WIDTH), np.float32)
     _pack(slots, child_wide, node_box, node_first, node_count, records, records.view(np.int32))
     return records
 

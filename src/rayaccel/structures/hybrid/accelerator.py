@@ -10,6 +10,7 @@ import numpy as np
 from ..._jit import thread_rows
 from ..._validate import check_number
 from ...geometry.gather import layout_nbytes
+from ...geometry.kinds import TRIANGLE
 from ...stats import box_area, surface_area_stats
 from ..base import Accelerator, walk_rays
 from ..grid.mailbox import MailboxPool
@@ -73,9 +74,14 @@ class GridBvh(Accelerator):
 
     def _derive_from_layout(self) -> None:
         """What the queries read besides the built (or loaded) arrays: the primitives in the order
-        of ``cell_prims`` (:meth:`~rayaccel.scene.TriangleMesh.gather`), read one after the other
-        in a cell or a leaf."""
-        self.geometry = self.scene.gather(self.hybrid.cell_prims)
+        of ``cell_prims``, read one after the other in a cell or a leaf, triangles in the indexed
+        layout (:meth:`~rayaccel.scene.TriangleMesh.gather`), as the kd-tree's: float32 rows, 36
+        bytes a reference, held 59.4 bytes a triangle of the full dragon (1.65 references each)
+        and put the hybrid at 111.2 bytes a triangle, over Embree's 91.9."""
+        if self.scene.kind == TRIANGLE:
+            self.geometry = self.scene.gather(self.hybrid.cell_prims, indexed=True)
+        else:
+            self.geometry = self.scene.gather(self.hybrid.cell_prims)
 
     def _trace(self, batch, any_hit, action, work):
         h = self.hybrid
