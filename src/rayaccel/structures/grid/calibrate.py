@@ -113,7 +113,7 @@ class _Traversal:
         self.scene = scene
         n = len(origins)
         self.rays = (origins, directions, np.zeros(n), np.full(n, np.inf), np.arange(n, dtype=np.int64))
-        self.mailbox = np.full((numba.config.NUMBA_NUM_THREADS, len(scene)), -1, dtype=np.int64)
+        self.mailbox = np.full((numba.config.NUMBA_NUM_THREADS, len(scene)), -1, dtype=np.int32)
         self.stamp = 0
         work = self._run(np.zeros((n, WORK_COLUMNS), dtype=np.int64))
         self.cells_per_ray = float(work[:, 0].mean())

@@ -77,7 +77,9 @@ class GridBvh(Accelerator):
         of ``cell_prims``, read one after the other in a cell or a leaf, triangles in the indexed
         layout (:meth:`~rayaccel.scene.TriangleMesh.gather`), as the kd-tree's: float32 rows, 36
         bytes a reference, held 59.4 bytes a triangle of the full dragon (1.65 references each)
-        and put the hybrid at 111.2 bytes a triangle, over Embree's 91.9."""
+        and put the hybrid at 111.2 bytes a triangle, over Embree's 91.9; indexed, 83.7, and
+        0.91-1.07 times as fast (alternating processes, camera, incoherent and shadow rays,
+        closest and any hit, two threads)."""
         if self.scene.kind == TRIANGLE:
             self.geometry = self.scene.gather(self.hybrid.cell_prims, indexed=True)
         else:
