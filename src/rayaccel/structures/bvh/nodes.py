@@ -81,13 +81,14 @@ def range_bounds(lo, hi, centroid, start, end, box, centroid_box):
 @kernel
 def close_gaps(node_box, node_first, node_count, top_end, block_root, block_first, block_end):
     """Move the blocks of node slots ``[block_first[k], block_end[k])``, in increasing order and
-    each holding the subtree under node ``block_root[k]`` (a node before ``top_end``), down to
-    follow each other from slot ``top_end``, shifting the child links that point into them;
-    returns the number of nodes. Slots only move down, so each is read before it is overwritten."""
+    each holding the subtree under node ``block_root[k]`` (a node before ``top_end``, or -1 for a
+    block that holds its own root), down to follow each other from slot ``top_end``, shifting
+    the child links that point into them; returns the number of nodes. Slots only move down, so
+    each is read before it is overwritten."""
     end = top_end
     for k in range(block_first.shape[0]):
         shift = block_first[k] - end
-        if node_count[block_root[k]] == 0:
+        if block_root[k] >= 0 and node_count[block_root[k]] == 0:
             node_first[block_root[k]] -= shift
         for old in range(block_first[k], block_end[k]):
             new = old - shift

@@ -9,9 +9,9 @@ need many more cells -- are searched by a BVH instead. The grid is built as in
 then get a BVH over their references with the top-down binned SAH builder of
 :mod:`..bvh.build_top_down`, all cells in parallel, each into its own block
 of node slots; the hybrid shares that builder's compiled kernel with ``bvh-binned``.
-The blocks, sized for leaves of one reference, are then compacted into one array
-of the nodes the trees use, each tree depth first with siblings side by side, and
-the boxes rounded outwards to float32 (:func:`_compact_forest`).
+The blocks, sized for leaves of one reference, are then moved together so that no
+slot is left unused (:func:`..bvh.nodes.close_gaps`, as the top-down builder
+closes the gaps between its subtrees), and the boxes rounded outwards to float32.
 """
 
 from __future__ import annotations
@@ -20,10 +20,10 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
-from ..._jit import kernel, thread_count
+from ..._jit import thread_count
 from ..bvh.build_top_down import SAH_BINNED, SUBTREE_KERNELS
 from ..bvh.layout import float32_boxes
-from ..bvh.nodes import node_depths
+from ..bvh.nodes import close_gaps, node_depths
 from ..grid.build_uniform import build_density_grid
 from .layout import GridBvhArrays
 
@@ -35,10 +35,12 @@ def _build_cell_bvhs(lo, hi, centroid, order, row_first, row_end, cell_root, max
     """Build the BVH of every dense cell ``d`` over ``order[row_first[d]:row_end[d]]``, rooted in
     slot ``cell_root[d]`` with its other nodes in the slots after it: the cells, largest first,
     dealt out to two shares per thread, each share built by the binned top-down builder's
-    GIL-free entry kernel on a thread of its own."""
+    GIL-free entry kernel on a thread of its own. Returns the slot after each cell's tree."""
     tasks = np.stack((cell_root, row_first, row_end), axis=1).astype(np.int64)
-    tasks = tasks[np.argsort(row_first - row_end, kind="stable")]
+    by_size = np.argsort(row_first - row_end, kind="stable")
+    tasks = tasks[by_size]
     slots = tasks[:, 0] + 1
+    ends = np.empty(len(tasks), dtype=np.int64)
     threads = thread_count()
     workers = 2 * threads
     build = SUBTREE_KERNELS[SAH_BINNED]
@@ -46,57 +48,17 @@ def _build_cell_bvhs(lo, hi, centroid, order, row_first, row_end, cell_root, max
               float(traversal_cost), float(intersection_cost), node_box, node_first, node_count)
     unused = np.zeros((1, 3), dtype=np.int64)
     shares = [np.arange(worker, len(tasks), workers) for worker in range(min(workers, len(tasks)))]
+
+    def build_share(share):
+        share_ends = np.empty(len(share), dtype=np.int64)
+        build(*common, tasks[share], slots[share], share_ends, 0, unused)
+        ends[share] = share_ends
+
     with ThreadPoolExecutor(threads) as pool:
-        list(pool.map(lambda share: build(*common, tasks[share], slots[share], np.empty(len(share), dtype=np.int64), 0,
-                                           unused), shares))
-
-
-@kernel
-def _depth_first_slots(cell_root, node_first, node_count):
-    """The slots the cells' trees use, in their new order: each tree depth first from its root,
-    a node's two children side by side; returns ``(new_slot, old_slot)``, the new slot of every
-    old one (-1 for unused) and the old slot at every new one."""
-    new_slot = np.full(len(node_first), -1, dtype=np.int64)
-    old_slot = np.empty(len(node_first), dtype=np.int64)
-    stack = np.empty(len(node_first) + 1, dtype=np.int64)
-    n = 0
-    for cell in range(len(cell_root)):
-        root = cell_root[cell]
-        if root < 0:
-            continue
-        new_slot[root] = n
-        old_slot[n] = root
-        n += 1
-        stack[0] = root
-        sp = 1
-        while sp > 0:
-            sp -= 1
-            node = stack[sp]
-            if node_count[node] == 0:
-                left = node_first[node]
-                for k in range(2):
-                    new_slot[left + k] = n
-                    old_slot[n] = left + k
-                    n += 1
-                stack[sp] = left + 1
-                stack[sp + 1] = left
-                sp += 2
-    return new_slot, old_slot[:n]
-
-
-def _compact_forest(cell_root, node_box, node_first, node_count):
-    """The forest without the slots its trees leave unused, boxes in float32 rounded outwards:
-    ``(cell_root, node_box, node_first, node_count)`` renumbered by :func:`_depth_first_slots`.
-    Leaves keep their offsets into ``cell_prims``."""
-    new_slot, old_slot = _depth_first_slots(cell_root, node_first, node_count)
-    count = node_count[old_slot]
-    first = node_first[old_slot]
-    inner = count == 0
-    first = np.where(inner, new_slot[np.where(inner, first, 0)], first).astype(np.int32)
-    root = np.full_like(cell_root, -1)
-    with_tree = cell_root >= 0
-    root[with_tree] = new_slot[cell_root[with_tree]]
-    return root, float32_boxes(node_box[old_slot]), first, count
+        list(pool.map(build_share, shares))
+    cell_ends = np.empty_like(ends)
+    cell_ends[by_size] = ends
+    return cell_ends
 
 
 def build_grid_bvh(bounds, kind, geom, density, threshold, max_leaf_size, bins, traversal_cost, intersection_cost,
@@ -114,18 +76,21 @@ def build_grid_bvh(bounds, kind, geom, density, threshold, max_leaf_size, bins, 
     n_nodes = int(blocks[-1])
     node_box = np.zeros((n_nodes, 6))
     node_first = np.zeros(n_nodes, dtype=np.int32)
-    node_count = np.ones(n_nodes, dtype=np.int32)  # unused slots read as empty leaves
+    node_count = np.ones(n_nodes, dtype=np.int32)
     depth = 0
     if len(dense):
-        _build_cell_bvhs(bounds.lo[order], bounds.hi[order], bounds.centroid[order], order,
-                         grid.cell_first[dense].astype(np.int64), grid.cell_first[dense + 1].astype(np.int64),
-                         blocks[:-1], max_leaf_size, bins, traversal_cost, intersection_cost, node_box, node_first,
-                         node_count)
-        node_box[:, :3] -= pad
-        node_box[:, 3:] += pad
-    cell_root, node_box, node_first, node_count = _compact_forest(cell_root, node_box, node_first, node_count)
-    if len(dense):
-        depth = int(node_depths(node_first, node_count).max())
+        ends = _build_cell_bvhs(bounds.lo[order], bounds.hi[order], bounds.centroid[order], order,
+                                grid.cell_first[dense].astype(np.int64), grid.cell_first[dense + 1].astype(np.int64),
+                                blocks[:-1], max_leaf_size, bins, traversal_cost, intersection_cost, node_box,
+                                node_first, node_count)
+        n_nodes = close_gaps(node_box, node_first, node_count, 0, np.full(len(dense), -1, dtype=np.int64),
+                             blocks[:-1], ends)
+        used = ends - blocks[:-1]
+        cell_root[dense] = np.cumsum(used) - used
+        node_box[:n_nodes, :3] -= pad
+        node_box[:n_nodes, 3:] += pad
+        depth = int(node_depths(node_first[:n_nodes], node_count[:n_nodes]).max())
     arrays = GridBvhArrays(grid.lo, grid.hi, grid.res, grid.cell_size, grid.cell_first, order.astype(np.int32),
-                           cell_root, node_box, node_first, node_count)
+                           cell_root, float32_boxes(node_box[:n_nodes]), node_first[:n_nodes].copy(),
+                           node_count[:n_nodes].copy())
     return arrays, depth

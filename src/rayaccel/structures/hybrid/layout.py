@@ -10,8 +10,8 @@ offset into ``cell_prims``; ``node_count`` is 0 for inner nodes):
   one by one, else the root of the cell's BVH, whose leaves index the cell's
   own row of ``cell_prims`` (reordered into leaf order);
 * ``node_box`` (n_nodes, 6) float32, rounded outwards, ``node_first``,
-  ``node_count`` (n_nodes,) int32: the forest, each tree depth first with a
-  node's children side by side.
+  ``node_count`` (n_nodes,) int32: the forest, each tree in one run of
+  slots, a node's children side by side.
 
 To walk it: 3D-DDA through the grid; in a cell with a BVH, a stack traversal
 of that BVH replaces the loop over the cell's row.
