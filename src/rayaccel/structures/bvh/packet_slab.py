@@ -154,7 +154,11 @@ def enter_children_by_lane(typingctx, records, node, state, lanes, entry):
     ``entry[c]`` the nearest entry into child ``c`` of those rays (``inf`` where none enters).
     ``state`` holds the packet's :data:`PACKET_ROWS` rows of :data:`PACKET` float64. The rays
     may point to either side along any axis; their tests are independent of each other, so
-    the processor overlaps them."""
+    the processor overlaps them. A lane not in ``lanes`` is branched over rather than computed
+    and masked: below the top of the tree a shadow packet's rays part ways, and most nodes are
+    entered by few of its lanes (shadow rays from 1024^2 camera hits, two threads, processes
+    alternating with the masked test, 3 a side, closest / any hit: full dragon 1.36 / 1.42,
+    forest 1.33 / 1.25)."""
     signature = types.int64(records, node, state, lanes, entry)
 
     def codegen(context, builder, sig, args):
@@ -177,22 +181,31 @@ def enter_children_by_lane(typingctx, records, node, state, lanes, entry):
             def value(state_row):
                 return builder.load(builder.gep(state_data, [ir.Constant(intp, state_row * PACKET + lane)]))
 
-            enter = _splat(builder, value(6), doubles)
-            exit_ = _splat(builder, value(7), doubles)
-            for axis in range(3):
-                origin, inverse = value(axis), value(axis + 3)
-                positive = builder.fcmp_ordered(">=", inverse, ir.Constant(ir.DoubleType(), 0.0))
-                near_box = builder.select(positive, boxes[axis], boxes[axis + 3])
-                far_box = builder.select(positive, boxes[axis + 3], boxes[axis])
-                enter, exit_ = tighten_to_slab(builder, near_box, far_box, _splat(builder, origin, doubles),
-                                               _splat(builder, inverse, doubles), enter, exit_)
             in_lanes = builder.trunc(builder.lshr(active, int64(lane)), ir.IntType(1))
-            entered = builder.and_(builder.fcmp_ordered("<=", enter, exit_),
-                                   _splat(builder, in_lanes, ir.VectorType(ir.IntType(1), WIDTH)))
-            lane_entry = builder.select(entered, enter, missed)
-            nearest = builder.select(builder.fcmp_ordered("<", lane_entry, nearest), lane_entry, nearest)
-            children = builder.zext(builder.bitcast(entered, ir.IntType(WIDTH)), int64)
-            word = builder.or_(word, builder.shl(children, int64(8 * lane)))
+            before = builder.block
+            with builder.if_then(in_lanes, likely=True):
+                enter = _splat(builder, value(6), doubles)
+                exit_ = _splat(builder, value(7), doubles)
+                for axis in range(3):
+                    origin, inverse = value(axis), value(axis + 3)
+                    positive = builder.fcmp_ordered(">=", inverse, ir.Constant(ir.DoubleType(), 0.0))
+                    near_box = builder.select(positive, boxes[axis], boxes[axis + 3])
+                    far_box = builder.select(positive, boxes[axis + 3], boxes[axis])
+                    enter, exit_ = tighten_to_slab(builder, near_box, far_box, _splat(builder, origin, doubles),
+                                                   _splat(builder, inverse, doubles), enter, exit_)
+                entered = builder.fcmp_ordered("<=", enter, exit_)
+                lane_entry = builder.select(entered, enter, missed)
+                lane_nearest = builder.select(builder.fcmp_ordered("<", lane_entry, nearest), lane_entry, nearest)
+                children = builder.zext(builder.bitcast(entered, ir.IntType(WIDTH)), int64)
+                lane_word = builder.or_(word, builder.shl(children, int64(8 * lane)))
+                tested = builder.block
+            merged_nearest = builder.phi(doubles)
+            merged_nearest.add_incoming(nearest, before)
+            merged_nearest.add_incoming(lane_nearest, tested)
+            merged_word = builder.phi(int64)
+            merged_word.add_incoming(word, before)
+            merged_word.add_incoming(lane_word, tested)
+            nearest, word = merged_nearest, merged_word
         entry_view = context.make_array(sig.args[4])(context, builder, entry_array)
         builder.store(nearest, builder.bitcast(entry_view.data, doubles.as_pointer()), align=8)
         return word
