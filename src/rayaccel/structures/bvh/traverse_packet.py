@@ -48,8 +48,10 @@ Eight rays' tests are independent of each other, so the processor overlaps them,
 the single walk waits for each test before the next fetch; the packet still fetches each
 node once. Shadow rays from 1024^2 camera hits, packets against the single walk, closest / any
 hit, several runs: one thread, forest 1.32-1.43 / 1.35-1.44, full dragon 1.24 / 1.30; two threads,
-full dragon 1.12-1.24 / 1.16-1.24, forest 1.16-1.18 / 1.18-1.23. On camera rays the interval
-bounds win (lane tests there: 0.92-1.12 of them).
+full dragon 1.12-1.24 / 1.16-1.24, forest 1.16-1.18 / 1.18-1.23; since the lanes outside a packet's
+mask are branched over rather than computed, two threads, one process: full dragon 1.19 / 1.14, forest
+1.42 / 1.50. On camera rays the interval bounds win (lane tests there: 0.92-1.12 of them; 0.72-0.89
+since).
 
 Batches that neither :func:`rayaccel.ray_order.packets_pay` nor
 :func:`rayaccel.ray_order.lane_packets_pay` finds coherent keep the single-ray walk of
