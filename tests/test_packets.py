@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import numba
 import numpy as np
 import pytest
 from conftest import (
@@ -17,7 +18,9 @@ import rayaccel as ra
 from rayaccel.ray_order import MIN_PACKET_RAYS, lane_packets_pay, packets_pay
 from rayaccel.rays import prepare_rays
 from rayaccel.structures.bvh import accelerator
-from rayaccel.structures.bvh.traverse_packet import SPAN
+from rayaccel.structures.bvh.packet_slab import PACKET, enter_children_by_lane
+from rayaccel.structures.bvh.traverse_packet import LANE_ROWS, SPAN
+from rayaccel.structures.bvh.wide import WIDTH
 
 
 @pytest.fixture(params=["shared origin", "by lane"])
@@ -222,3 +225,40 @@ def test_walks_that_check_their_rays_refuse_unusable_ones(small_dragon, monkeypa
         directions[bad] = 0.0
     with pytest.raises(ValueError, match=f"{words}.*first at index {bad}"):
         getattr(bvh, query)(origins, directions)
+
+
+@numba.njit
+def _lane_test(records, node, state, lanes, entry):
+    return enter_children_by_lane(records, node, state, lanes, entry)
+
+
+def test_lane_test_answers_each_lane_of_the_mask_as_alone(small_dragon):
+    """The lane-by-lane box test skips the lanes outside its mask: for any mask it gives each lane
+    of the mask the children that lane gives alone, nothing for the others, and the nearest entry
+    of the lanes in the mask."""
+    accel = ra.build(small_dragon, "bvh-binned")
+    rng = np.random.default_rng(7)
+    origins, _ = random_rays(small_dragon, PACKET, seed=7)
+    corners = small_dragon.vertices[small_dragon.faces[rng.integers(0, len(small_dragon.faces), PACKET)]]
+    directions = corners.mean(axis=1) - origins
+    state = np.zeros(LANE_ROWS * PACKET)
+    state[:3 * PACKET] = origins.T.ravel()
+    state[3 * PACKET:6 * PACKET] = (1.0 / directions).T.ravel()
+    state[7 * PACKET:8 * PACKET] = np.inf
+    entry = np.empty(WIDTH)
+    tested = 0
+    for node in range(len(accel.wide)):
+        if _lane_test(accel.wide, node, state, 0xFF, entry) == 0:
+            continue
+        alone, alone_entry = [], []
+        for lane in range(PACKET):
+            alone.append((_lane_test(accel.wide, node, state, 1 << lane, entry) >> (8 * lane)) & 0xFF)
+            alone_entry.append(entry.copy())
+        for lanes in rng.integers(0, 256, 24):
+            word = _lane_test(accel.wide, node, state, int(lanes), entry)
+            in_mask = [lane for lane in range(PACKET) if lanes >> lane & 1]
+            assert word % (1 << 64) == sum(alone[lane] << (8 * lane) for lane in in_mask)
+            nearest = np.min([np.full(WIDTH, np.inf)] + [alone_entry[lane] for lane in in_mask], axis=0)
+            assert np.array_equal(entry, nearest)
+        tested += 1
+    assert tested >= 16
