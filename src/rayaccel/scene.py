@@ -169,8 +169,9 @@ class Spheres:
         :attr:`TriangleMesh.prim_layout`."""
         return self.geometry
 
-    def gather(self, order: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
-        """``geometry[order]``, written into ``out`` (len(order), 4) when given."""
+    def gather(self, order: np.ndarray, out: np.ndarray | None = None, *, indexed: bool = False) -> np.ndarray:
+        """``geometry[order]``, written into ``out`` (len(order), 4) when given. Spheres have rows
+        only: ``indexed``, which a mesh's :meth:`TriangleMesh.gather` takes, changes nothing."""
         return np.take(self.geometry, order, axis=0, out=out)
 
     def __len__(self) -> int:

@@ -43,7 +43,7 @@ from .split_sah_binned import split_sah_binned
 from .split_sah_sweep import split_sah_sweep
 
 __all__ = ["SPATIAL_MEDIAN", "OBJECT_MEDIAN", "SAH_SWEEP", "SAH_BINNED", "MORTON", "SUBTREE_KERNELS",
-           "build_subtrees", "build_top_down"]
+           "build_subtrees", "build_blocks", "build_top_down"]
 
 SPATIAL_MEDIAN = 0
 OBJECT_MEDIAN = 1
@@ -207,6 +207,27 @@ SUBTREE_KERNELS = {SPATIAL_MEDIAN: _spatial_median_subtrees, OBJECT_MEDIAN: _obj
 """The entry kernel of each strategy, all with the arguments of :func:`build_subtrees` after ``strategy``."""
 
 
+def build_blocks(build, common, tasks, slots, threads):
+    """Build the subtree of each task (rows ``(root slot, first, end)`` over ``order``, largest
+    first) into its own block of node slots from ``slots[k]`` with the entry kernel ``build``
+    and its leading arguments ``common``, the tasks dealt out to two shares per thread, each
+    share on a thread of its own (the kernels release the GIL); returns the slot after each
+    task's subtree."""
+    ends = np.empty(len(tasks), dtype=np.int64)
+    unused = np.zeros((1, 3), dtype=np.int64)
+    workers = 2 * threads
+    shares = [np.arange(worker, len(tasks), workers) for worker in range(min(workers, len(tasks)))]
+
+    def build_share(share):
+        share_ends = np.empty(len(share), dtype=np.int64)
+        build(*common, tasks[share], slots[share], share_ends, 0, unused)
+        ends[share] = share_ends
+
+    with ThreadPoolExecutor(threads) as pool:
+        list(pool.map(build_share, shares))
+    return ends
+
+
 def build_top_down(lo, hi, centroid, order, sorted_codes, strategy, max_leaf_size, bins,
                    traversal_cost, intersection_cost, threads, identity_order=False):
     """Build over the primitives in ``order`` (permuted in place into leaf order; ``identity_order``
@@ -243,16 +264,6 @@ def build_top_down(lo, hi, centroid, order, sorted_codes, strategy, max_leaf_siz
         tasks = tasks[np.argsort(tasks[:, 1] - tasks[:, 2], kind="stable")]  # largest first
         sizes = 2 * (tasks[:, 2] - tasks[:, 1]) - 1
         slots = end + np.cumsum(sizes) - sizes
-        ends = np.empty(len(tasks), dtype=np.int64)
-        unused = np.zeros((1, 3), dtype=np.int64)
-        shares = [np.arange(worker, len(tasks), workers) for worker in range(min(workers, len(tasks)))]
-
-        def build_share(share):
-            share_ends = np.empty(len(share), dtype=np.int64)
-            build(*common, tasks[share], slots[share], share_ends, 0, unused)
-            ends[share] = share_ends
-
-        with ThreadPoolExecutor(threads) as pool:
-            list(pool.map(build_share, shares))
+        ends = build_blocks(build, common, tasks, slots, threads)
         end = close_gaps(node_box, node_first, node_count, end, tasks[:, 0], slots, ends)
     return node_box[:end].copy(), node_first[:end].copy(), node_count[:end].copy()

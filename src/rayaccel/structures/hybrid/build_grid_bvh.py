@@ -16,12 +16,10 @@ closes the gaps between its subtrees), and the boxes rounded outwards to float32
 
 from __future__ import annotations
 
-from concurrent.futures import ThreadPoolExecutor
-
 import numpy as np
 
 from ..._jit import thread_count
-from ..bvh.build_top_down import SAH_BINNED, SUBTREE_KERNELS
+from ..bvh.build_top_down import SAH_BINNED, SUBTREE_KERNELS, build_blocks
 from ..bvh.layout import float32_boxes
 from ..bvh.nodes import close_gaps, node_depths
 from ..grid.build_uniform import build_density_grid
@@ -35,27 +33,14 @@ def _build_cell_bvhs(lo, hi, centroid, order, row_first, row_end, cell_root, max
     """Build the BVH of every dense cell ``d`` over ``order[row_first[d]:row_end[d]]``, rooted in
     slot ``cell_root[d]`` with its other nodes in the slots after it: the cells, largest first,
     dealt out to two shares per thread, each share built by the binned top-down builder's
-    GIL-free entry kernel on a thread of its own. Returns the slot after each cell's tree."""
+    GIL-free entry kernel on a thread of its own (:func:`..bvh.build_top_down.build_blocks`).
+    Returns the slot after each cell's tree."""
     tasks = np.stack((cell_root, row_first, row_end), axis=1).astype(np.int64)
     by_size = np.argsort(row_first - row_end, kind="stable")
     tasks = tasks[by_size]
-    slots = tasks[:, 0] + 1
-    ends = np.empty(len(tasks), dtype=np.int64)
-    threads = thread_count()
-    workers = 2 * threads
-    build = SUBTREE_KERNELS[SAH_BINNED]
     common = (lo, hi, centroid, order, np.zeros(0, dtype=np.int64), int(max_leaf_size), int(bins),
               float(traversal_cost), float(intersection_cost), node_box, node_first, node_count)
-    unused = np.zeros((1, 3), dtype=np.int64)
-    shares = [np.arange(worker, len(tasks), workers) for worker in range(min(workers, len(tasks)))]
-
-    def build_share(share):
-        share_ends = np.empty(len(share), dtype=np.int64)
-        build(*common, tasks[share], slots[share], share_ends, 0, unused)
-        ends[share] = share_ends
-
-    with ThreadPoolExecutor(threads) as pool:
-        list(pool.map(build_share, shares))
+    ends = build_blocks(SUBTREE_KERNELS[SAH_BINNED], common, tasks, tasks[:, 0] + 1, thread_count())
     cell_ends = np.empty_like(ends)
     cell_ends[by_size] = ends
     return cell_ends

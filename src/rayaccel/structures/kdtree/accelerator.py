@@ -12,7 +12,6 @@ import numpy as np
 from ..._jit import kernel, thread_count, thread_rows
 from ..._validate import check_number
 from ...geometry.gather import layout_nbytes
-from ...geometry.kinds import TRIANGLE
 from ...stats import box_area, surface_area_stats
 from ..actions import NEAREST
 from ..base import Accelerator, walk_rays
@@ -197,10 +196,7 @@ class KdTree(Accelerator):
         dragon (1.75 references each) and put the kd-tree at 100.5 bytes a triangle, over
         Embree's 91.9; indexed, 70.6, and 0.92-1.01 times as fast (medians of 7 interleaved
         rounds, camera, incoherent and shadow rays, closest and any hit, two threads)."""
-        if self.scene.kind == TRIANGLE:
-            self.geometry = self.scene.gather(self.kd.leaf_prims, indexed=True)
-        else:
-            self.geometry = self.scene.gather(self.kd.leaf_prims)
+        self.geometry = self.scene.gather(self.kd.leaf_prims, indexed=True)
         self.max_depth = _tree_depth(self.kd)
 
     def _build(self, scene, threads, traversal_cost, intersection_cost, empty_bonus, leaf_size, max_depth, bins,
