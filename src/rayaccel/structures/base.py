@@ -12,7 +12,17 @@ from ..geometry.sphere import sphere_hit_coords
 from ..ray_order import coherent_batch, sorting_pays
 from ..rays import WORK_COLUMNS, AllHits, Camera, Hits, RayBatch, RayCounters, prepare_rays
 from ..scene import SPHERE, PrimitiveBounds, Spheres, TriangleMesh
-from .actions import NEAREST, hit_count, hit_list, hit_slots, intersect_references, is_closer, nearest_hit, store_hit
+from .actions import (
+    NEAREST,
+    hit_count,
+    hit_flags,
+    hit_list,
+    hit_slots,
+    intersect_references,
+    is_closer,
+    nearest_hit,
+    store_hit,
+)
 from .grid.mailbox import MailboxPool
 from .hit_slots import hit_arrays, kept_hits
 from .point_queries import PointQueries, any_dask
@@ -140,8 +150,12 @@ class Accelerator(PointQueries):
         return self._occluded(origins, directions, t_min, t_max, reorder)
 
     def _occluded(self, origins, directions, t_min, t_max, reorder) -> np.ndarray:
-        """:meth:`occluded` on array inputs (scenes of instances override it)."""
-        return self._cast(origins, directions, t_min, t_max, True, False, reorder, prim_only=True)[2] >= 0
+        """:meth:`occluded` on array inputs (scenes of instances override it): the walk writes
+        each ray's answer itself (:func:`.actions.hit_flags`)."""
+        rays = self._prepare_rays(origins, directions, t_min, t_max)
+        hit = np.empty(len(rays.origins), dtype=np.bool_)
+        self._walk_prepared(rays, reorder, True, hit_flags(hit), np.zeros((0, WORK_COLUMNS), dtype=np.int64))
+        return hit
 
     def count(self, origins, directions, t_min=0.0, t_max=np.inf, *, reorder=True) -> np.ndarray:
         """(n,) int64: how many times each ray crosses the scene within ``[t_min, t_max]``.
@@ -306,19 +320,27 @@ class Accelerator(PointQueries):
             f"scene with ra.build(scene, {self.method!r})"
         )
 
-    def _cast(self, origins, directions, t_min, t_max, any_hit, counters, reorder, prim_only=False):
+    def _cast(self, origins, directions, t_min, t_max, any_hit, counters, reorder):
         """Validate the rays and trace them: ``(rays, t, prim, u, v, geom, work)``, each in the order
         given. The kernels write every ray's row of ``t``, ``prim``, ``u``, ``v`` and ``geom``
-        (:func:`.actions.finish_ray`), so these start empty; ``prim`` only when ``prim_only``
-        (the others are then empty)."""
-        rays = prepare_rays(origins, directions, t_min, t_max, compact=True, check=not self._walk_checks_rays)
+        (:func:`.actions.finish_ray`), so these start empty."""
+        rays = self._prepare_rays(origins, directions, t_min, t_max)
         n = len(rays.origins)
-        t, u, v = (np.empty(0 if prim_only else n) for _ in range(3))
-        prim, geom = np.empty(n, dtype=np.int64), np.empty(0 if prim_only else n, dtype=np.int64)
+        t, u, v = (np.empty(n) for _ in range(3))
+        prim, geom = np.empty(n, dtype=np.int64), np.empty(n, dtype=np.int64)
         work = np.zeros((n if counters else 0, WORK_COLUMNS), dtype=np.int64)
-        if n and self._trace(self._ordered(rays, reorder), any_hit, nearest_hit(t, prim, u, v, geom), work):
-            check_ray_arrays(rays.origins, rays.directions)
+        self._walk_prepared(rays, reorder, any_hit, nearest_hit(t, prim, u, v, geom), work)
         return rays, t, prim, u, v, geom, work
+
+    def _prepare_rays(self, origins, directions, t_min, t_max) -> RayBatch:
+        """The rays of a closest-hit or any-hit query, checked here unless the walk checks them."""
+        return prepare_rays(origins, directions, t_min, t_max, compact=True, check=not self._walk_checks_rays)
+
+    def _walk_prepared(self, rays, reorder, any_hit, action, work) -> None:
+        """Trace :meth:`_prepare_rays`'s rays with ``action``; when the walk met rays it could not
+        use, the check it skipped runs to raise the error."""
+        if len(rays.origins) and self._trace(self._ordered(rays, reorder), any_hit, action, work):
+            check_ray_arrays(rays.origins, rays.directions)
 
     @property
     def _walk_checks_rays(self) -> bool:
