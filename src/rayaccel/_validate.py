@@ -87,9 +87,11 @@ def _owned(array: np.ndarray) -> np.ndarray:
     return array if array.flags.writeable else array.copy()
 
 
-def as_points(name: str, values, *, allow_empty: bool = False, check_finite: bool = True) -> np.ndarray:
-    """``values`` as a C-contiguous float64 (n, 3) array, of finite coordinates unless
-    ``check_finite`` is False (the caller checks them later)."""
+def as_points(name: str, values, *, allow_empty: bool = False, check_finite: bool = True,
+              keep_float32: bool = False) -> np.ndarray:
+    """``values`` as a C-contiguous float64 (n, 3) array, or float32 when ``keep_float32`` and
+    they are float32 already, of finite coordinates unless ``check_finite`` is False (the
+    caller checks them later)."""
     try:
         array = np.asarray(values)
     except Exception as exc:  # ragged nested sequences and the like
@@ -104,7 +106,8 @@ def as_points(name: str, values, *, allow_empty: bool = False, check_finite: boo
         raise ValueError(f"{name} must have shape (n, 3), got {array.shape}")
     if array.shape[0] == 0 and not allow_empty:
         raise ValueError(f"{name} is empty")
-    array = _owned(np.ascontiguousarray(array, dtype=np.float64))
+    kept = np.float32 if keep_float32 and array.dtype == np.float32 else np.float64
+    array = _owned(np.ascontiguousarray(array, dtype=kept))
     if check_finite and _first_nonfinite_row(array) >= 0:
         raise _nonfinite_error(name, array, int((~np.isfinite(array).all(axis=1)).sum()))
     return array

@@ -10,11 +10,12 @@ from ._jit import inline_kernel
 from ._validate import as_per_ray, as_points, check_ray_arrays
 
 __all__ = ["RayBatch", "RayCounters", "WORK_COLUMNS", "Hits", "AllHits", "Camera", "prepare_rays", "random_lines",
-           "ray_limit", "result_row"]
+           "ray_at", "ray_limit", "result_row"]
 
 
 class RayBatch(NamedTuple):
-    """Validated rays: float64 C-contiguous ``origins``/``directions`` (n, 3), ``t_min``/``t_max`` (n,),
+    """Validated rays: float64 (or, for walks that take them, float32) C-contiguous
+    ``origins``/``directions`` (n, 3), ``t_min``/``t_max`` (n,),
     and ``hit_slot`` (n,) int64, the row of the output arrays that takes each ray's hit:
     ``arange(n)`` as given, a permutation once :func:`rayaccel.ray_order.coherent_batch`
     has sorted the rays.
@@ -110,7 +111,7 @@ class AllHits(NamedTuple):
 
 
 def prepare_rays(origins, directions, t_min=0.0, t_max=np.inf, *, compact: bool = False,
-                 check: bool = True) -> RayBatch:
+                 check: bool = True, keep_float32: bool = False) -> RayBatch:
     """Validate and convert a ray batch once, at the Python boundary; a compact
     :class:`RayBatch` when ``compact``.
 
@@ -118,10 +119,13 @@ def prepare_rays(origins, directions, t_min=0.0, t_max=np.inf, *, compact: bool 
     NaN limits, and zero-length directions: a ray without a direction has no
     defined first hit, so it is an error rather than a silent miss. Without ``check``
     the coordinates and directions are left for the walk to test
-    (:func:`rayaccel._validate.unusable_ray`), which saves reading them twice.
+    (:func:`rayaccel._validate.unusable_ray`), which saves reading them twice. With
+    ``keep_float32``, origins and directions that are both float32 stay float32, for walks
+    that read them through :func:`ray_at`.
     """
-    origins = as_points("origins", origins, allow_empty=True, check_finite=False)
-    directions = as_points("directions", directions, allow_empty=True, check_finite=False)
+    keep_float32 = keep_float32 and np.asarray(origins).dtype == np.float32 == np.asarray(directions).dtype
+    origins = as_points("origins", origins, allow_empty=True, check_finite=False, keep_float32=keep_float32)
+    directions = as_points("directions", directions, allow_empty=True, check_finite=False, keep_float32=keep_float32)
     if origins.shape != directions.shape:
         if len(origins) == 1:
             origins = np.ascontiguousarray(np.broadcast_to(origins, directions.shape))
@@ -134,6 +138,15 @@ def prepare_rays(origins, directions, t_min=0.0, t_max=np.inf, *, compact: bool 
     n = len(origins)
     return RayBatch(origins, directions, as_per_ray("t_min", t_min, n, shared=compact),
                     as_per_ray("t_max", t_max, n, shared=compact), np.arange(0 if compact else n, dtype=np.int64))
+
+
+@inline_kernel
+def ray_at(origins, directions, i):
+    """Ray ``i``'s origin and direction as six float64 numbers, from float64 or float32 arrays: a
+    float32 coordinate widens to float64 exactly, so a walk computes the same bits from float32
+    rays as from their float64 copy."""
+    return (np.float64(origins[i, 0]), np.float64(origins[i, 1]), np.float64(origins[i, 2]),
+            np.float64(directions[i, 0]), np.float64(directions[i, 1]), np.float64(directions[i, 2]))
 
 
 @inline_kernel

@@ -333,8 +333,10 @@ class Accelerator(PointQueries):
         return rays, t, prim, u, v, geom, work
 
     def _prepare_rays(self, origins, directions, t_min, t_max) -> RayBatch:
-        """The rays of a closest-hit or any-hit query, checked here unless the walk checks them."""
-        return prepare_rays(origins, directions, t_min, t_max, compact=True, check=not self._walk_checks_rays)
+        """The rays of a closest-hit or any-hit query, checked here unless the walk checks them,
+        and float32 rays kept so where the walk takes them."""
+        return prepare_rays(origins, directions, t_min, t_max, compact=True, check=not self._walk_checks_rays,
+                            keep_float32=self._walk_takes_float32)
 
     def _walk_prepared(self, rays, reorder, any_hit, action, work) -> None:
         """Trace :meth:`_prepare_rays`'s rays with ``action``; when the walk met rays it could not
@@ -348,6 +350,13 @@ class Accelerator(PointQueries):
         :func:`rayaccel._validate.unusable_ray` refuses unwalked, and has :meth:`_trace` return how
         many it met, so that :meth:`intersect` and :meth:`occluded` need not read the rays once
         more beforehand to check them: false unless a structure says otherwise."""
+        return False
+
+    @property
+    def _walk_takes_float32(self) -> bool:
+        """Whether the closest-hit and any-hit walk reads float32 rays as they are
+        (:func:`rayaccel.rays.ray_at`), so that :meth:`intersect` and :meth:`occluded` need not
+        copy them into float64: false unless a structure says otherwise."""
         return False
 
     @functools.cached_property

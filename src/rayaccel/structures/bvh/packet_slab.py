@@ -61,6 +61,21 @@ def _splat(builder, value, vector_type):
     return vector
 
 
+def _rays_readable(*arrays):
+    """Whether ray arrays are ones :func:`_load_eight` reads: C-contiguous float64 or float32."""
+    return all(a.layout == "C" and a.dtype in (types.float64, types.float32) for a in arrays)
+
+
+def _load_eight(builder, array_type, pointer):
+    """Eight consecutive numbers of a float64 or float32 array from ``pointer`` as a vector of
+    eight float64 (float32 widened exactly, as :func:`rayaccel.rays.ray_at` widens them)."""
+    doubles = ir.VectorType(ir.DoubleType(), PACKET)
+    if array_type.dtype == types.float64:
+        return builder.load(builder.bitcast(pointer, doubles.as_pointer()), align=8)
+    floats = ir.VectorType(ir.FloatType(), PACKET)
+    return builder.fpext(builder.load(builder.bitcast(pointer, floats.as_pointer()), align=4), doubles)
+
+
 def _record_row(context, builder, records_type, records, node_type, node):
     """Pointer to float32 column 0 of wide record ``node`` (records of ``8 * WIDTH`` floats)."""
     view = context.make_array(records_type)(context, builder, records)
@@ -216,12 +231,12 @@ def enter_children_by_lane(typingctx, records, node, state, lanes, entry):
 @intrinsic
 def load_packet(typingctx, origins, directions, first, state, bounds):
     """Load the :data:`PACKET` rays from row ``first`` of ``origins`` and ``directions`` ((n, 3)
-    C-contiguous float64) into rows 0-5 of ``state`` (origins, then inverse directions, one
+    C-contiguous float64 or float32) into rows 0-5 of ``state`` (origins, then inverse directions, one
     lane a ray), in vector instructions: three loads of eight float64 per array, shuffled
     from rows to lanes, and three vector divisions. Returns 1 when the rays point to both
     sides along some axis, else 0 after writing the packet's interval bounds (rows 0-14 of
     :data:`BOUND_VALUES`) into ``bounds``, as the scalar set-up of the packet walk computes them."""
-    if origins.layout != "C" or directions.layout != "C":
+    if not _rays_readable(origins, directions):
         return None
     signature = types.int64(origins, directions, first, state, bounds)
 
@@ -235,8 +250,8 @@ def load_packet(typingctx, origins, directions, first, state, bounds):
         def lanes_by_axis(array_type, array):
             data = context.make_array(array_type)(context, builder, array).data
             start = builder.gep(data, [builder.mul(row, ir.Constant(intp, 3))])
-            parts = [builder.load(builder.bitcast(builder.gep(start, [ir.Constant(intp, PACKET * k)]),
-                                                  doubles.as_pointer()), align=8) for k in range(3)]
+            parts = [_load_eight(builder, array_type, builder.gep(start, [ir.Constant(intp, PACKET * k)]))
+                     for k in range(3)]
             low = builder.shuffle_vector(parts[0], parts[1], ir.Constant(ir.VectorType(ir.IntType(32), 2 * PACKET),
                                                                           list(range(2 * PACKET))))
             high = builder.shuffle_vector(parts[2], parts[2], ir.Constant(ir.VectorType(ir.IntType(32), 2 * PACKET),
@@ -298,14 +313,14 @@ def _reduce_lanes(builder, vector, compare):
 @intrinsic
 def bound_span(typingctx, origins, directions, first, packets, bounds):
     """The interval bounds of the ``PACKET * packets`` rays from row ``first`` of ``origins`` and
-    ``directions`` ((n, 3) C-contiguous float64), for :func:`enter_children_interval`: returns
+    ``directions`` ((n, 3) C-contiguous float64 or float32), for :func:`enter_children_interval`: returns
     0 after writing rows 0-14 of :data:`BOUND_VALUES` into ``bounds``, or 1, leaving ``bounds``
     unfinished, when along some axis the directions are not all of one strict sign. Each
     group of eight rows is read as three vectors of eight coordinates and folded into running
     minima and maxima lane by lane, with no shuffle; the lanes of each axis are reduced once at
     the end. The inverse directions are bounded by the inverses of the extreme directions: a
     correctly rounded division is monotone, so each ray's own inverse lies between them."""
-    if origins.layout != "C" or directions.layout != "C":
+    if not _rays_readable(origins, directions):
         return None
     signature = types.int64(origins, directions, first, packets, bounds)
 
@@ -333,9 +348,8 @@ def bound_span(typingctx, origins, directions, first, packets, bounds):
             for array in range(2):
                 block = builder.gep(starts[array], [offset])
                 for part in range(3):
-                    pointer = builder.bitcast(builder.gep(block, [ir.Constant(intp, PACKET * part)]),
-                                              doubles.as_pointer())
-                    values = builder.load(pointer, align=8)
+                    values = _load_eight(builder, sig.args[array],
+                                         builder.gep(block, [ir.Constant(intp, PACKET * part)]))
                     for compare in ("<", ">"):
                         slot = running[array, part, compare]
                         kept = builder.load(slot)

@@ -46,7 +46,7 @@ import numpy as np
 from ..._jit import chunk_kernel, inline_kernel, unsigned
 from ..._validate import unusable_rays
 from ...geometry.primitive import RAY_FLOATS, RAY_INTS, load_ray, ray_setup, store_ray
-from ...rays import ray_limit, result_row
+from ...rays import ray_at, ray_limit, result_row
 from ..actions import COUNT, NEAREST, finish_misses_in_mode, finish_ray_in_mode
 from .traverse import enter_box
 from .traverse_wide import push_child, visit_leaf
@@ -88,8 +88,7 @@ def _take_ray(slot, next_ray, ray_end, ints, floats, root_box, origins, directio
     while next_ray < ray_end:
         i = next_ray
         next_ray += 1
-        ox, oy, oz = origins[i, 0], origins[i, 1], origins[i, 2]
-        dx, dy, dz = directions[i, 0], directions[i, 1], directions[i, 2]
+        ox, oy, oz, dx, dy, dz = ray_at(origins, directions, i)
         ix, iy, iz = 1.0 / dx, 1.0 / dy, 1.0 / dz
         near_x = 0 if ix >= 0.0 else 3
         near_y = 1 if iy >= 0.0 else 4

@@ -68,7 +68,7 @@ from ...geometry.gather import corner
 from ...geometry.kinds import TRIANGLE
 from ...geometry.primitive import ray_setup
 from ...geometry.triangle import intersect_triangle
-from ...rays import ray_limit, result_row
+from ...rays import ray_at, ray_limit, result_row
 from ..actions import NEAREST, finish_misses_in_mode, finish_ray_in_mode, is_closer
 from .packet_slab import (
     BOUND_BEST,
@@ -157,8 +157,8 @@ def _set_up_lanes(state, origins, directions, packet_first, n_lanes):
     shared = True
     for r in range(PACKET):
         i = packet_first + min(r, n_lanes - 1)
-        _, _, _, _, _, _, kx, ky, kz, sx, sy, sz, okx, oky, okz = ray_setup(
-            origins[i, 0], origins[i, 1], origins[i, 2], directions[i, 0], directions[i, 1], directions[i, 2])
+        ox, oy, oz, dx, dy, dz = ray_at(origins, directions, i)
+        _, _, _, _, _, _, kx, ky, kz, sx, sy, sz, okx, oky, okz = ray_setup(ox, oy, oz, dx, dy, dz)
         state[_SX + r] = sx
         state[_SY + r] = sy
         state[_SZ + r] = sz
@@ -196,8 +196,8 @@ def _leaf_lane_after_lane(mode, action, hit_slot, kind, geom, prim_order, first,
         r = highest_bit(remaining)
         remaining ^= 1 << r
         i = packet_first + r
-        ray = ray_setup(origins[i, 0], origins[i, 1], origins[i, 2], directions[i, 0], directions[i, 1],
-                        directions[i, 2])
+        ox, oy, oz, dx, dy, dz = ray_at(origins, directions, i)
+        ray = ray_setup(ox, oy, oz, dx, dy, dz)
         best_t, prim_r, best_u, best_v, _ = visit_leaf(mode, action, result_row(hit_slot, i), kind, geom, prim_order,
                                                        first, count, ray, state[_T_MIN + r], state[_BEST + r],
                                                        best_prim[r], state[_U + r], state[_V + r], any_hit)
@@ -293,7 +293,7 @@ def _packet_walk(ray_first, ray_end, tid, records, links, prim_order, kind, geom
                 for r in range(PACKET):
                     i = packet_first + min(r, n_lanes - 1)
                     for axis in range(3):
-                        inverse = 1.0 / directions[i, axis]
+                        inverse = 1.0 / np.float64(directions[i, axis])
                         state[axis * PACKET + r] = origins[i, axis]
                         state[(axis + 3) * PACKET + r] = inverse
                         mixed |= (inverse >= 0.0) != (state[(axis + 3) * PACKET] >= 0.0)

@@ -33,7 +33,7 @@ from ..._jit import chunk_kernel, inline_kernel, prefetch, unsigned
 from ..._validate import unusable_ray
 from ...geometry.gather import prefetch_prim
 from ...geometry.primitive import ray_setup
-from ...rays import ray_limit, result_row
+from ...rays import ray_at, ray_limit, result_row
 from ..actions import COUNT, NEAREST, finish_ray_in_mode, visit_prim_in_mode
 from .traverse import enter_box
 from .wide import child_count, child_link
@@ -109,8 +109,7 @@ def _walk(ray_first, ray_end, tid, root_box, records, links, prim_order, kind, g
     for i in range(ray_first, ray_end):
         row = result_row(hit_slot, i)
         ray_t_min, ray_t_max = ray_limit(t_min, i), ray_limit(t_max, i)
-        ox, oy, oz = origins[i, 0], origins[i, 1], origins[i, 2]
-        dx, dy, dz = directions[i, 0], directions[i, 1], directions[i, 2]
+        ox, oy, oz, dx, dy, dz = ray_at(origins, directions, i)
         if unusable_ray(ox, oy, oz, dx, dy, dz):
             unusable += 1
             finish_ray_in_mode(mode, action, row, ray_t_max, -1, 0.0, 0.0)
