@@ -3,10 +3,16 @@ for the rays' float64 copy; every other structure takes their float64 copy."""
 
 from __future__ import annotations
 
+from contextlib import ExitStack
+from unittest.mock import patch
+
 import numpy as np
 import pytest
 from conftest import assert_same_hits, axis_parallel_rays, camera_rays, random_rays, vertex_and_edge_rays
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 from test_packets import shadow_rays
+from test_properties import lattice_rays, triangle_scenes
 
 import rayaccel as ra
 from rayaccel.ray_order import MIN_PACKET_RAYS
@@ -112,3 +118,46 @@ def test_unusable_float32_rays_are_refused_by_index(small_dragon, query, batch):
             d[bad] = 0.0
         with pytest.raises(ValueError, match=f"{words}.*first at index {bad}"):
             getattr(wide, query)(o, d)
+
+
+FORCED_WALKS = {
+    "single": {"packets_pay": False, "lane_packets_pay": False, "interleaving_pays": False},
+    "interval packets": {"packets_pay": True, "lane_packets_pay": False, "interleaving_pays": False},
+    "lane packets": {"packets_pay": False, "lane_packets_pay": True, "interleaving_pays": False},
+    "interleaved": {"packets_pay": False, "lane_packets_pay": False, "interleaving_pays": True},
+}
+
+
+@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(data=st.data(), walk=st.sampled_from(list(FORCED_WALKS)))
+def test_generated_scenes_and_float32_rays_match_their_float64_copy(data, walk):
+    """Generated lattice scenes (degenerate, duplicated and axis-aligned triangles, scales from
+    1e-20 to 1e20) and float32 rays through their vertices and edges, along lattice and random
+    directions, repeated into batches of packets, walked by each eight-wide walk: closest hit and
+    ``occluded`` as for the rays' float64 copy, bit for bit, and brute force's."""
+    mesh, to_world, lattice, faces = data.draw(triangle_scenes())
+    corners = lattice[faces]
+    candidates = np.concatenate((lattice, 0.5 * (corners[:, 0] + corners[:, 1]), corners.mean(axis=1),
+                                 np.array([[-1.0, -1.0, -1.0], [4.0, 4.0, 4.0]])))
+    origins, steps = lattice_rays(data.draw, candidates, 24)
+    rng = np.random.default_rng(data.draw(st.integers(0, 2**16)))
+    directions = np.where(rng.random((24, 1)) < 0.75, steps, rng.normal(size=(24, 3)))
+    world_origins = to_world(origins).astype(np.float32)
+    world_directions = (to_world(directions) - to_world(np.zeros(3))).astype(np.float32)
+    usable = np.isfinite(world_origins).all(axis=1) & np.isfinite(world_directions).all(axis=1) & \
+        (np.abs(world_directions).sum(axis=1) > 0)
+    repeats = -(-(MIN_PACKET_RAYS + 5) // max(int(usable.sum()), 1))
+    origins32 = np.tile(world_origins[usable], (repeats, 1))
+    directions32 = np.tile(world_directions[usable], (repeats, 1))
+    origins64, directions64 = origins32.astype(np.float64), directions32.astype(np.float64)
+    wide, brute = ra.build(mesh, "bvh-binned"), ra.build(mesh, "none")
+    with ExitStack() as stack:
+        for name, value in FORCED_WALKS[walk].items():
+            stack.enter_context(patch.object(accelerator, name, lambda *args, value=value: value))
+        hits = wide.intersect(origins32, directions32)
+        reference = wide.intersect(origins64, directions64)
+        occluded = wide.occluded(origins32, directions32)
+    for field in ("t", "prim", "u", "v", "geom"):
+        np.testing.assert_array_equal(getattr(hits, field), getattr(reference, field))
+    assert_same_hits(brute.intersect(origins64, directions64), hits)
+    np.testing.assert_array_equal(occluded, reference.prim >= 0)

@@ -71,7 +71,7 @@ def sphere_scenes(draw):
     return ra.Spheres(scale * centers, scale * radii), scale
 
 
-def _lattice_rays(draw, points, n):
+def lattice_rays(draw, points, n):
     """Rays from ``points`` (on surfaces, vertices, edges, or around) along lattice or random directions."""
     origins = points[np.array(draw(st.lists(st.integers(0, len(points) - 1), min_size=n, max_size=n)))]
     steps = np.array(draw(st.lists(st.tuples(*[st.integers(-2, 2)] * 3), min_size=n, max_size=n)), dtype=float)
@@ -117,7 +117,7 @@ def test_generated_triangle_scenes_agree_with_brute_force(data, variant):
     candidates = np.concatenate((lattice, 0.5 * (corners[:, 0] + corners[:, 1]), corners.mean(axis=1),
                                  np.array([[-1.0, -1.0, -1.0], [4.0, 4.0, 4.0], [1.5, 1.5, -1.0]])))
     n = 24
-    origins, steps = _lattice_rays(data.draw, candidates, n)
+    origins, steps = lattice_rays(data.draw, candidates, n)
     rng = np.random.default_rng(data.draw(st.integers(0, 2**16)))
     random_directions = rng.normal(size=(n, 3))
     directions = np.where(rng.random((n, 1)) < 0.75, steps, random_directions)
@@ -135,7 +135,7 @@ def test_generated_sphere_scenes_agree_with_brute_force(data, variant):
     spheres, scale = data.draw(sphere_scenes())
     surface = spheres.centers + spheres.radii[:, None] * np.array([1.0, 0.0, 0.0])
     candidates = np.concatenate((spheres.centers, surface, scale * np.array([[-2.0, -2.0, -2.0], [5.0, 1.0, 1.0]])))
-    origins, steps = _lattice_rays(data.draw, candidates, 20)
+    origins, steps = lattice_rays(data.draw, candidates, 20)
     t_min, t_max = _limits(data.draw, 20)
     _check(spheres, origins, scale * steps, t_min, t_max, variant)
 

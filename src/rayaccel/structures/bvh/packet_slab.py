@@ -232,7 +232,7 @@ def enter_children_by_lane(typingctx, records, node, state, lanes, entry):
 def load_packet(typingctx, origins, directions, first, state, bounds):
     """Load the :data:`PACKET` rays from row ``first`` of ``origins`` and ``directions`` ((n, 3)
     C-contiguous float64 or float32) into rows 0-5 of ``state`` (origins, then inverse directions, one
-    lane a ray), in vector instructions: three loads of eight float64 per array, shuffled
+    lane a ray), in vector instructions: three loads of eight numbers per array, shuffled
     from rows to lanes, and three vector divisions. Returns 1 when the rays point to both
     sides along some axis, else 0 after writing the packet's interval bounds (rows 0-14 of
     :data:`BOUND_VALUES`) into ``bounds``, as the scalar set-up of the packet walk computes them."""
