@@ -17,13 +17,16 @@ packets do so: forest camera rays on two threads, medians of 9 in alternating pr
 22.3-23.3 -> 18.5-20.4 ms, the full dragon's 42.6-44.3 -> 40.2-42.6 ms; the forest's shadow
 rays (one thread, medians of 5 processes each) 19.7 -> 18.7 ms, the dragon's unchanged.
 Any-hit shadow packets do so too (forest, one thread, medians of 4: 17.5 -> 15.6 ms; the
-dragon's 57.0 -> 58.6 ms, within the spread of the runs); any-hit camera packets, whose rays
-leave at their first hit, keep the lane-after-lane tests (with the vector test: the same on
-the forest, up to 4 % slower on the dragon). A closest-hit packet takes the entered children
-nearest first and skips an entry popped beyond the farthest best hit of its rays, which also
-bounds its node tests; an any-hit packet drops each ray that found a hit, and stops when none
-is left. Counting and listing walks take the packets too (:func:`wide_packet_crossings_kernel`),
-each ray's crossings going to its own row.
+dragon's 57.0 -> 58.6 ms, within the spread of the runs), and so do any-hit camera packets
+since ``occluded`` writes one byte a ray: against the lane-after-lane tests, one thread, CPU
+time, medians of 9-15 in one process, forest 1.11 and 1.13, full dragon 1.02 (two threads,
+alternating processes: forest 0.98 and 1.02, dragon 1.16 and 0.91, the noise of that hour;
+before the change to ``occluded``: the same on the forest, up to 4 % slower on the dragon).
+A closest-hit packet takes the entered children nearest first and skips an entry popped
+beyond the farthest best hit of its rays, which also bounds its node tests; an any-hit packet
+drops each ray that found a hit, and stops when none is left. Counting and listing walks take
+the packets too (:func:`wide_packet_crossings_kernel`), each ray's crossings going to its own
+row.
 
 A packet whose rays point to both sides along some axis has no single near face there:
 its rays are walked as packets of one.
@@ -270,7 +273,7 @@ def _packet_walk(ray_first, ray_end, tid, records, links, prim_order, kind, geom
     bounds = bounds_state[tid]
     best_prim = lanes_prim[tid]
     nearest_first = not any_hit and mode == NEAREST
-    lane_triangles = mode == NEAREST and (by_lane or not any_hit) and kind == TRIANGLE
+    lane_triangles = mode == NEAREST and kind == TRIANGLE
     unusable = 0
     for span_first in range(ray_first, ray_end, SPAN):
         span_end = min(span_first + SPAN, ray_end)
