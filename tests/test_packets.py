@@ -229,6 +229,9 @@ def test_walks_that_check_their_rays_refuse_unusable_ones(small_dragon, monkeypa
 
 @numba.njit
 def _lane_test(records, node, state, lanes, entry):
+    """The lane test called from Python. Not cached: Numba's cache checks only this file's time
+    stamp, so a cached wrapper kept the old lane test compiled in after ``packet_slab`` changed
+    (a mutation of the lane test passed)."""
     return enter_children_by_lane(records, node, state, lanes, entry)
 
 

@@ -123,9 +123,10 @@ def prepare_rays(origins, directions, t_min=0.0, t_max=np.inf, *, compact: bool 
     ``keep_float32``, origins and directions that are both float32 stay float32, for walks
     that read them through :func:`ray_at`.
     """
-    keep_float32 = keep_float32 and np.asarray(origins).dtype == np.float32 == np.asarray(directions).dtype
     origins = as_points("origins", origins, allow_empty=True, check_finite=False, keep_float32=keep_float32)
     directions = as_points("directions", directions, allow_empty=True, check_finite=False, keep_float32=keep_float32)
+    if origins.dtype != directions.dtype:
+        origins, directions = np.asarray(origins, dtype=np.float64), np.asarray(directions, dtype=np.float64)
     if origins.shape != directions.shape:
         if len(origins) == 1:
             origins = np.ascontiguousarray(np.broadcast_to(origins, directions.shape))
