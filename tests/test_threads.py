@@ -10,7 +10,7 @@ import pytest
 from conftest import assert_same_hits, random_rays
 
 import rayaccel as ra
-from rayaccel._jit import chunk_count, set_threads, share_among_threads, thread_count, thread_rows
+from rayaccel._jit import chunk_count, on_threads, set_threads, share_among_threads, thread_count, thread_rows
 
 
 @pytest.fixture
@@ -41,6 +41,49 @@ def test_every_item_once_and_rows_never_shared(two_threads, n, chunk):
     share_among_threads(run, n, chunk)
     assert (seen == 1).all()
     assert rows_used <= set(range(chunk_count(n, chunk)))
+
+
+def test_the_calling_thread_takes_chunks_too(two_threads):
+    takers = []
+
+    def run(first, end, row):
+        time.sleep(0.002)
+        takers.append(threading.get_ident())
+
+    share_among_threads(run, 64, 4)
+    assert len(takers) == 16
+    assert threading.get_ident() in takers
+
+
+def test_on_threads_returns_each_chunk_result_in_order(two_threads):
+    results = on_threads(lambda first, end, c: (c, first, end), 100, min_chunk=10)
+    assert [c for c, _, _ in results] == list(range(len(results))) == [0, 1]
+    assert results[0][1] == 0 and results[-1][2] == 100
+    assert all(results[c][2] == results[c + 1][1] for c in range(len(results) - 1))
+
+
+@pytest.mark.parametrize("failing_row", [0, 1])
+def test_an_error_is_raised_once_every_chunk_has_ended(two_threads, failing_row):
+    running = set()
+    started = []
+    lock = threading.Lock()
+
+    def run(first, end, row):
+        with lock:
+            running.add(first)
+            started.append(first)
+        try:
+            time.sleep(0.01)
+            if row == failing_row and first > 0:
+                raise RuntimeError(f"chunk from {first} failed")
+        finally:
+            with lock:
+                running.discard(first)
+
+    with pytest.raises(RuntimeError, match="failed"):
+        share_among_threads(run, 400, 4)
+    assert not running
+    assert len(started) < 100
 
 
 def test_walks_give_the_same_hits_on_one_thread_and_in_many_chunks(small_dragon, two_threads):
