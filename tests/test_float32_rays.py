@@ -12,7 +12,7 @@ from conftest import assert_same_hits, axis_parallel_rays, camera_rays, random_r
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from test_packets import shadow_rays
-from test_properties import lattice_rays, triangle_scenes
+from test_properties import triangle_scene_rays, triangle_scenes
 
 import rayaccel as ra
 from rayaccel.ray_order import MIN_PACKET_RAYS
@@ -137,12 +137,7 @@ def test_generated_scenes_and_float32_rays_match_their_float64_copy(data, walk):
     directions, repeated into batches of packets, walked by each eight-wide walk: closest hit and
     ``occluded`` as for the rays' float64 copy, bit for bit, and brute force's."""
     mesh, to_world, lattice, faces = data.draw(triangle_scenes())
-    corners = lattice[faces]
-    candidates = np.concatenate((lattice, 0.5 * (corners[:, 0] + corners[:, 1]), corners.mean(axis=1),
-                                 np.array([[-1.0, -1.0, -1.0], [4.0, 4.0, 4.0]])))
-    origins, steps = lattice_rays(data.draw, candidates, 24)
-    rng = np.random.default_rng(data.draw(st.integers(0, 2**16)))
-    directions = np.where(rng.random((24, 1)) < 0.75, steps, rng.normal(size=(24, 3)))
+    origins, directions = triangle_scene_rays(data.draw, lattice, faces, 24)
     world_origins = to_world(origins).astype(np.float32)
     world_directions = (to_world(directions) - to_world(np.zeros(3))).astype(np.float32)
     usable = np.isfinite(world_origins).all(axis=1) & np.isfinite(world_directions).all(axis=1) & \

@@ -71,7 +71,7 @@ def sphere_scenes(draw):
     return ra.Spheres(scale * centers, scale * radii), scale
 
 
-def lattice_rays(draw, points, n):
+def _lattice_rays(draw, points, n):
     """Rays from ``points`` (on surfaces, vertices, edges, or around) along lattice or random directions."""
     origins = points[np.array(draw(st.lists(st.integers(0, len(points) - 1), min_size=n, max_size=n)))]
     steps = np.array(draw(st.lists(st.tuples(*[st.integers(-2, 2)] * 3), min_size=n, max_size=n)), dtype=float)
@@ -109,18 +109,24 @@ def test_a_scene_of_one_point_far_from_the_origin_builds_and_agrees_with_brute_f
     _check(mesh, origins, directions, np.zeros(3), np.full(3, np.inf), variant)
 
 
+def triangle_scene_rays(draw, lattice, faces, n):
+    """``n`` rays in the lattice coordinates of a :func:`triangle_scenes` scene: from its vertices,
+    edge midpoints, centroids or points around it, three in four along lattice directions (through
+    vertices and edges, parallel to faces), the others along random ones."""
+    corners = lattice[faces]
+    candidates = np.concatenate((lattice, 0.5 * (corners[:, 0] + corners[:, 1]), corners.mean(axis=1),
+                                 np.array([[-1.0, -1.0, -1.0], [4.0, 4.0, 4.0], [1.5, 1.5, -1.0]])))
+    origins, steps = _lattice_rays(draw, candidates, n)
+    rng = np.random.default_rng(draw(st.integers(0, 2**16)))
+    return origins, np.where(rng.random((n, 1)) < 0.75, steps, rng.normal(size=(n, 3)))
+
+
 @settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(data=st.data(), variant=st.sampled_from(VARIANTS))
 def test_generated_triangle_scenes_agree_with_brute_force(data, variant):
     mesh, to_world, lattice, faces = data.draw(triangle_scenes())
-    corners = lattice[faces]
-    candidates = np.concatenate((lattice, 0.5 * (corners[:, 0] + corners[:, 1]), corners.mean(axis=1),
-                                 np.array([[-1.0, -1.0, -1.0], [4.0, 4.0, 4.0], [1.5, 1.5, -1.0]])))
     n = 24
-    origins, steps = lattice_rays(data.draw, candidates, n)
-    rng = np.random.default_rng(data.draw(st.integers(0, 2**16)))
-    random_directions = rng.normal(size=(n, 3))
-    directions = np.where(rng.random((n, 1)) < 0.75, steps, random_directions)
+    origins, directions = triangle_scene_rays(data.draw, lattice, faces, n)
     t_min, t_max = _limits(data.draw, n)
     world = to_world(origins)
     world_directions = to_world(directions) - to_world(np.zeros(3))
@@ -135,7 +141,7 @@ def test_generated_sphere_scenes_agree_with_brute_force(data, variant):
     spheres, scale = data.draw(sphere_scenes())
     surface = spheres.centers + spheres.radii[:, None] * np.array([1.0, 0.0, 0.0])
     candidates = np.concatenate((spheres.centers, surface, scale * np.array([[-2.0, -2.0, -2.0], [5.0, 1.0, 1.0]])))
-    origins, steps = lattice_rays(data.draw, candidates, 20)
+    origins, steps = _lattice_rays(data.draw, candidates, 20)
     t_min, t_max = _limits(data.draw, 20)
     _check(spheres, origins, scale * steps, t_min, t_max, variant)
 

@@ -203,7 +203,7 @@ def share_among_threads(run, n: int, chunk: int) -> None:
     stood between chunks fell from 2.36 to 0.69 ms for the forest's camera rays, any hit (the
     call took 13-18 ms), 2.21 to 0.85 for their closest hit, 9.59 to 5.06 for incoherent rays,
     any hit, and on the dragon from 2.12 to 0.62 (camera rays, any hit) and 16.3 to 6.0 ms
-    (incoherent); the first chunk began 0.3-0.4 ms sooner."""
+    (incoherent); the first chunk began 0.2-0.5 ms sooner."""
     threads = chunk_count(n, chunk)
     if threads == 1:
         run(0, n, 0)
