@@ -16,9 +16,13 @@ from conftest import (
 
 import rayaccel as ra
 from rayaccel.ray_order import MIN_PACKET_RAYS, lane_packets_pay, packets_pay
+from rayaccel.geometry.gather import corner
+from rayaccel.geometry.primitive import ray_setup
+from rayaccel.geometry.triangle import intersect_triangle
 from rayaccel.rays import prepare_rays
 from rayaccel.structures.bvh import accelerator
-from rayaccel.structures.bvh.packet_slab import PACKET, enter_children_by_lane
+from rayaccel.structures.bvh.packet_slab import PACKET, PACKET_ROWS, enter_children_by_lane
+from rayaccel.structures.bvh.packet_triangle import HIT_ROW, SHEAR_ROW, hits_by_lane
 from rayaccel.structures.bvh.traverse_packet import LANE_ROWS, SPAN
 from rayaccel.structures.bvh.wide import WIDTH
 
@@ -265,3 +269,74 @@ def test_lane_test_answers_each_lane_of_the_mask_as_alone(small_dragon):
             assert np.array_equal(entry, nearest)
         tested += 1
     assert tested >= 16
+
+
+@numba.njit(cache=False)
+def _lanes_and_single_tests(triangles, origins, directions, t_min, t_max, state, lanes_hits, single_hits):
+    """For each triangle, the packet's vector test and the single-ray test of each lane: the
+    lanes each reports hit and their ``(t, u, v)``, or -1 where the lanes' axes differ."""
+    shared = True
+    kx0, ky0, kz0 = 0, 0, 0
+    for r in range(PACKET):
+        _, _, _, _, _, _, kx, ky, kz, sx, sy, sz, okx, oky, okz = ray_setup(
+            origins[r, 0], origins[r, 1], origins[r, 2], directions[r, 0], directions[r, 1], directions[r, 2])
+        if r == 0:
+            kx0, ky0, kz0 = kx, ky, kz
+        shared &= kx == kx0 and ky == ky0 and kz == kz0
+        for k, value in enumerate((sx, sy, okx, oky, okz, sz)):
+            state[(SHEAR_ROW + k) * PACKET + r] = value
+        state[(PACKET_ROWS - 2) * PACKET + r] = t_min[r]
+        state[(PACKET_ROWS - 1) * PACKET + r] = t_max[r]
+    if not shared:
+        return -1
+    for k in range(triangles.shape[0]):
+        word = hits_by_lane(state, 0xFF, corner(triangles, k, 0, kx0), corner(triangles, k, 0, ky0),
+                            corner(triangles, k, 0, kz0), corner(triangles, k, 1, kx0), corner(triangles, k, 1, ky0),
+                            corner(triangles, k, 1, kz0), corner(triangles, k, 2, kx0), corner(triangles, k, 2, ky0),
+                            corner(triangles, k, 2, kz0))
+        for r in range(PACKET):
+            if word >> r & 1:
+                for j in range(3):
+                    lanes_hits[k, r, j] = state[(HIT_ROW + j) * PACKET + r]
+            t, u, v = intersect_triangle(triangles, k, state[(SHEAR_ROW + 2) * PACKET + r],
+                                         state[(SHEAR_ROW + 3) * PACKET + r], state[(SHEAR_ROW + 4) * PACKET + r],
+                                         kx0, ky0, kz0, state[SHEAR_ROW * PACKET + r],
+                                         state[(SHEAR_ROW + 1) * PACKET + r], state[(SHEAR_ROW + 5) * PACKET + r],
+                                         t_min[r], t_max[r])
+            if t != np.inf:
+                single_hits[k, r, 0], single_hits[k, r, 1], single_hits[k, r, 2] = t, u, v
+    return 0
+
+
+def test_vector_triangle_test_is_the_single_ray_test_in_each_lane():
+    """The packets' triangle test (:func:`.packet_triangle.hits_by_lane`) gives each lane the hit,
+    distance and barycentrics the single-ray test gives its ray, to the bit: on triangles hit
+    through their vertices and edges, on degenerate ones (a repeated corner, collinear corners,
+    all three corners alike) and with limits that cut hits off."""
+    rng = np.random.default_rng(11)
+    compared = hits = 0
+    for _ in range(300):
+        corners = rng.normal(size=(24, 3, 3))
+        corners[:4, 2] = corners[:4, 0]
+        corners[4:8, 2] = 0.5 * (corners[4:8, 0] + corners[4:8, 1])
+        corners[8:10] = corners[8:10, :1]
+        triangles = corners.reshape(-1, 9)
+        eye = rng.normal(size=3) + np.array([0.0, 0.0, 6.0])
+        targets = corners[rng.integers(0, 24, PACKET)]
+        weights = rng.choice([0.0, 0.5, 1.0, 1.0 / 3.0], size=(PACKET, 3))
+        weights /= np.maximum(weights.sum(axis=1, keepdims=True), 1e-300)
+        weights[weights.sum(axis=1) == 0] = 1.0 / 3.0
+        aims = np.einsum("rj,rjk->rk", weights, targets)
+        origins = eye + 1e-3 * rng.normal(size=(PACKET, 3))
+        directions = aims - origins
+        t_min = rng.choice([0.0, 0.5, 1.0], PACKET)
+        t_max = rng.choice([np.inf, 1.0, 0.9999999999999999, 2.0], PACKET)
+        lanes_hits = np.full((len(triangles), PACKET, 3), np.nan)
+        single_hits = np.full((len(triangles), PACKET, 3), np.nan)
+        state = np.zeros(LANE_ROWS * PACKET)
+        if _lanes_and_single_tests(triangles, origins, directions, t_min, t_max, state, lanes_hits, single_hits) < 0:
+            continue
+        np.testing.assert_array_equal(lanes_hits, single_hits)
+        compared += 1
+        hits += int(np.isfinite(single_hits[..., 0]).sum())
+    assert compared >= 250 and hits >= 1000

@@ -22,9 +22,11 @@ import numpy as np
 from .._jit import inline_kernel
 from .gather import corner
 
-__all__ = ["shear_setup", "intersect_triangle", "cross_triangle"]
+__all__ = ["shear_setup", "intersect_triangle", "cross_triangle", "DEGENERATE"]
 
-_DEGENERATE = 1e-13  # relative size of det below which a triangle counts as degenerate
+DEGENERATE = 1e-13
+"""Relative size of ``det`` (to the sum of its six products' magnitudes) at or below which a
+triangle counts as degenerate."""
 
 
 @inline_kernel
@@ -75,7 +77,7 @@ def _hit_from_edges(e0, e1, e2, ax_, ay_, bx_, by_, cx_, cy_, az_, bz_, cz_, sz,
     # the rounding error of its six products counts as zero.
     size = (abs(cx_ * by_) + abs(cy_ * bx_) + abs(ax_ * cy_) + abs(ay_ * cx_) + abs(bx_ * ay_)
             + abs(by_ * ax_))
-    if abs(det) <= _DEGENERATE * size:
+    if abs(det) <= DEGENERATE * size:
         return np.inf, 0.0, 0.0, 0.0
     t = sz * (e0 * az_ + e1 * bz_ + e2 * cz_) / det
     if t >= t_min and t <= t_max:

@@ -11,8 +11,8 @@ is paid once for eight rays. A leaf the packet enters is tested against each of 
 rays (:func:`.packet_slab.enter_child_lanes`), and only the rays that enter it test its
 primitives, with the single-ray walk's test (the same hits, to the bit). A packet whose rays
 share the triangle test's axes may instead test each triangle of the leaf on all its rays at
-once (:func:`.packet_triangle.inside_edges_by_lane`, the rays' shear set up at the packet's
-first leaf) and finish only the rays inside its edges with the single-ray test. Closest-hit
+once (:func:`.packet_triangle.hits_by_lane`, the rays' shear set up at the packet's first leaf),
+lane for lane the single-ray test's arithmetic. Closest-hit
 packets do so: forest camera rays on two threads, medians of 9 in alternating processes,
 22.3-23.3 -> 18.5-20.4 ms, the full dragon's 42.6-44.3 -> 40.2-42.6 ms; the forest's shadow
 rays (one thread, medians of 5 processes each) 19.7 -> 18.7 ms, the dragon's unchanged.
@@ -70,7 +70,6 @@ from ..._validate import unusable_rays
 from ...geometry.gather import corner
 from ...geometry.kinds import TRIANGLE
 from ...geometry.primitive import ray_setup
-from ...geometry.triangle import intersect_triangle
 from ...rays import ray_at, ray_limit, result_row
 from ..actions import NEAREST, finish_misses_in_mode, finish_ray_in_mode, is_closer
 from .packet_slab import (
@@ -83,7 +82,7 @@ from .packet_slab import (
     enter_children_interval,
     load_packet,
 )
-from .packet_triangle import SHEAR_ROW, SHEAR_ROWS, inside_edges_by_lane
+from .packet_triangle import HIT_ROW, HIT_ROWS, SHEAR_ROW, SHEAR_ROWS, hits_by_lane
 from .traverse_wide import push_child, visit_leaf
 from .wide import child_count, child_link
 from .wide_slab import highest_bit
@@ -100,10 +99,12 @@ _BEST = 7 * PACKET
 _U = 8 * PACKET
 _V = 9 * PACKET
 _SX, _SY, _OKX, _OKY, _OKZ, _SZ = ((SHEAR_ROW + k) * PACKET for k in range(SHEAR_ROWS))
-LANE_ROWS = SHEAR_ROW + SHEAR_ROWS
+_HIT_T, _HIT_U, _HIT_V = ((HIT_ROW + k) * PACKET for k in range(HIT_ROWS))
+LANE_ROWS = HIT_ROW + HIT_ROWS
 """Rows of :data:`PACKET` float64 a packet keeps per thread: the ray state
-:func:`.packet_slab.enter_child_lanes` reads, its rays' best ``u`` and ``v``, then their
-triangle-test constants (:data:`.packet_triangle.SHEAR_ROW`)."""
+:func:`.packet_slab.enter_child_lanes` reads, its rays' best ``u`` and ``v``, their
+triangle-test constants (:data:`.packet_triangle.SHEAR_ROW`), then their hits on the last
+triangle tested (:data:`.packet_triangle.HIT_ROW`)."""
 
 
 @inline_kernel
@@ -215,26 +216,23 @@ def _leaf_by_triangle(geom, prim_order, first, count, lanes, done, kx, ky, kz, s
     """:func:`_leaf_lane_after_lane` for a closest-hit or any-hit walk over triangles whose rays
     share the triangle test's axes ``kx, ky, kz`` (their constants set up by
     :func:`_set_up_lanes`): each triangle tested on all the live rays at once
-    (:func:`.packet_triangle.inside_edges_by_lane`), the rays inside its edges finished by the
-    single-ray test, a hit kept as :func:`..actions.visit_prim_in_mode` keeps it."""
+    (:func:`.packet_triangle.hits_by_lane`), a hit kept as :func:`..actions.visit_prim_in_mode`
+    keeps it."""
     improved = False
     for k in range(first, first + count):
         live = lanes & ~done
         if live == 0:
             break
-        inside = inside_edges_by_lane(state, live, corner(geom, k, 0, kx), corner(geom, k, 0, ky),
-                                      corner(geom, k, 0, kz), corner(geom, k, 1, kx), corner(geom, k, 1, ky),
-                                      corner(geom, k, 1, kz), corner(geom, k, 2, kx), corner(geom, k, 2, ky),
-                                      corner(geom, k, 2, kz))
-        while inside != 0:
-            r = highest_bit(inside)
-            inside ^= 1 << r
-            t, u, v = intersect_triangle(geom, k, state[_OKX + r], state[_OKY + r], state[_OKZ + r], kx, ky, kz,
-                                         state[_SX + r], state[_SY + r], state[_SZ + r], state[_T_MIN + r],
-                                         state[_BEST + r])
+        hit = hits_by_lane(state, live, corner(geom, k, 0, kx), corner(geom, k, 0, ky), corner(geom, k, 0, kz),
+                           corner(geom, k, 1, kx), corner(geom, k, 1, ky), corner(geom, k, 1, kz),
+                           corner(geom, k, 2, kx), corner(geom, k, 2, ky), corner(geom, k, 2, kz))
+        while hit != 0:
+            r = highest_bit(hit)
+            hit ^= 1 << r
+            t = state[_HIT_T + r]
             prim = prim_order[unsigned(k)]
             if is_closer(t, prim, state[_BEST + r], best_prim[r]):
-                improved |= _keep_lane_hit(state, best_prim, r, t, prim, u, v)
+                improved |= _keep_lane_hit(state, best_prim, r, t, prim, state[_HIT_U + r], state[_HIT_V + r])
                 if any_hit:
                     done |= 1 << r
     return done, improved
