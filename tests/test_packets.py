@@ -15,14 +15,21 @@ from conftest import (
 )
 
 import rayaccel as ra
-from rayaccel.ray_order import MIN_PACKET_RAYS, lane_packets_pay, packets_pay
 from rayaccel.geometry.gather import corner
 from rayaccel.geometry.primitive import ray_setup
 from rayaccel.geometry.triangle import intersect_triangle
+from rayaccel.ray_order import MIN_PACKET_RAYS, lane_packets_pay, packets_pay
 from rayaccel.rays import prepare_rays
 from rayaccel.structures.bvh import accelerator
 from rayaccel.structures.bvh.packet_slab import PACKET, PACKET_ROWS, enter_children_by_lane
-from rayaccel.structures.bvh.packet_triangle import HIT_ROW, SHEAR_ROW, hits_by_lane
+from rayaccel.structures.bvh.packet_triangle import (
+    HIT_ROW,
+    NOT_SHARED,
+    SHEAR_ROW,
+    SHEAR_ROWS,
+    hits_by_lane,
+    set_up_shear,
+)
 from rayaccel.structures.bvh.traverse_packet import LANE_ROWS, SPAN
 from rayaccel.structures.bvh.wide import WIDTH
 
@@ -340,3 +347,52 @@ def test_vector_triangle_test_is_the_single_ray_test_in_each_lane():
         compared += 1
         hits += int(np.isfinite(single_hits[..., 0]).sum())
     assert compared >= 250 and hits >= 1000
+
+
+@numba.njit(cache=False)
+def _shear_set_ups(origins, directions, state, scalar_rows):
+    """The vector set-up of the packet's triangle-test constants, and the scalar one of each
+    ray in ``scalar_rows`` (rows as :data:`.packet_triangle.SHEAR_ROW` orders them); returns
+    the vector set-up's code and the scalar axes' code, or ``NOT_SHARED`` where they differ."""
+    code = set_up_shear(origins, directions, 0, state)
+    scalar_code = 0
+    for r in range(PACKET):
+        _, _, _, _, _, _, kx, ky, kz, sx, sy, sz, okx, oky, okz = ray_setup(
+            np.float64(origins[r, 0]), np.float64(origins[r, 1]), np.float64(origins[r, 2]),
+            np.float64(directions[r, 0]), np.float64(directions[r, 1]), np.float64(directions[r, 2]))
+        for k, value in enumerate((sx, sy, okx, oky, okz, sz)):
+            scalar_rows[k, r] = value
+        lane_code = kx + 4 * ky + 16 * kz
+        if r == 0:
+            scalar_code = lane_code
+        elif lane_code != scalar_code:
+            scalar_code = NOT_SHARED
+    return code, scalar_code
+
+
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+def test_vector_shear_set_up_is_each_rays_own(dtype):
+    """The packets' set-up of the triangle test (:func:`.packet_triangle.set_up_shear`) gives
+    each lane the constants the single-ray set-up gives its ray, to the bit, and reports shared
+    axes exactly when every ray has the same: on directions of either sign along each axis, with
+    two or three components of equal size (the dominant axis then decided by the ties' order)."""
+    rng = np.random.default_rng(13)
+    kinds = set()
+    for _ in range(400):
+        directions = rng.normal(size=(PACKET, 3)) * rng.choice([1.0, 1e-3, 1e3], size=(1, 3))
+        ties = rng.integers(0, 4)
+        if ties:
+            directions[:, ties % 3] = directions[:, (ties + 1) % 3] * rng.choice([1.0, -1.0], size=PACKET)
+        if rng.random() < 0.5:
+            directions[:] = directions[0] * rng.uniform(0.5, 2.0, size=(PACKET, 1))
+        origins = rng.normal(size=(PACKET, 3)).astype(dtype)
+        directions = directions.astype(dtype)
+        state = np.zeros(LANE_ROWS * PACKET)
+        scalar_rows = np.zeros((SHEAR_ROWS, PACKET))
+        code, scalar_code = _shear_set_ups(origins, directions, state, scalar_rows)
+        assert code == scalar_code
+        if code != NOT_SHARED:
+            np.testing.assert_array_equal(state[SHEAR_ROW * PACKET:(SHEAR_ROW + SHEAR_ROWS) * PACKET],
+                                          scalar_rows.ravel())
+        kinds.add(code)
+    assert NOT_SHARED in kinds and len(kinds) >= 7

@@ -38,7 +38,8 @@ from .wide import WIDTH
 from .wide_slab import entered_children, tighten_lanes, tighten_to_slab
 
 __all__ = ["PACKET", "PACKET_ROWS", "BOUND_T_MIN", "BOUND_BEST", "BOUND_VALUES", "enter_children_interval",
-           "enter_child_lanes", "enter_children_by_lane", "load_packet", "bound_span"]
+           "enter_child_lanes", "enter_children_by_lane", "load_packet", "bound_span", "packet_by_axis",
+           "rays_readable"]
 
 PACKET = 8
 """Rays per packet, one per vector lane."""
@@ -61,7 +62,7 @@ def _splat(builder, value, vector_type):
     return vector
 
 
-def _rays_readable(*arrays):
+def rays_readable(*arrays):
     """Whether ray arrays are ones :func:`_load_eight` reads: C-contiguous float64 or float32."""
     return all(a.layout == "C" and a.dtype in (types.float64, types.float32) for a in arrays)
 
@@ -74,6 +75,23 @@ def _load_eight(builder, array_type, pointer):
         return builder.load(builder.bitcast(pointer, doubles.as_pointer()), align=8)
     floats = ir.VectorType(ir.FloatType(), PACKET)
     return builder.fpext(builder.load(builder.bitcast(pointer, floats.as_pointer()), align=4), doubles)
+
+
+def packet_by_axis(context, builder, array_type, array, row):
+    """The :data:`PACKET` rows from ``row`` (an intp value) of an (n, 3) ray array that
+    :func:`rays_readable` accepts, as three vectors of eight float64, x, y and z, one lane a ray:
+    three loads of eight numbers, shuffled from rows to lanes."""
+    intp = context.get_value_type(types.intp)
+    data = context.make_array(array_type)(context, builder, array).data
+    start = builder.gep(data, [builder.mul(row, ir.Constant(intp, 3))])
+    parts = [_load_eight(builder, array_type, builder.gep(start, [ir.Constant(intp, PACKET * k)])) for k in range(3)]
+    low = builder.shuffle_vector(parts[0], parts[1], ir.Constant(ir.VectorType(ir.IntType(32), 2 * PACKET),
+                                                                  list(range(2 * PACKET))))
+    high = builder.shuffle_vector(parts[2], parts[2], ir.Constant(ir.VectorType(ir.IntType(32), 2 * PACKET),
+                                                                   list(range(2 * PACKET))))
+    return [builder.shuffle_vector(low, high, ir.Constant(ir.VectorType(ir.IntType(32), PACKET),
+                                                          [3 * lane + axis for lane in range(PACKET)]))
+            for axis in range(3)]
 
 
 def _record_row(context, builder, records_type, records, node_type, node):
@@ -236,7 +254,7 @@ def load_packet(typingctx, origins, directions, first, state, bounds):
     from rows to lanes, and three vector divisions. Returns 1 when the rays point to both
     sides along some axis, else 0 after writing the packet's interval bounds (rows 0-14 of
     :data:`BOUND_VALUES`) into ``bounds``, as the scalar set-up of the packet walk computes them."""
-    if not _rays_readable(origins, directions):
+    if not rays_readable(origins, directions):
         return None
     signature = types.int64(origins, directions, first, state, bounds)
 
@@ -246,22 +264,8 @@ def load_packet(typingctx, origins, directions, first, state, bounds):
         double = ir.DoubleType()
         doubles = ir.VectorType(double, PACKET)
         row = context.cast(builder, first_row, sig.args[2], types.intp)
-
-        def lanes_by_axis(array_type, array):
-            data = context.make_array(array_type)(context, builder, array).data
-            start = builder.gep(data, [builder.mul(row, ir.Constant(intp, 3))])
-            parts = [_load_eight(builder, array_type, builder.gep(start, [ir.Constant(intp, PACKET * k)]))
-                     for k in range(3)]
-            low = builder.shuffle_vector(parts[0], parts[1], ir.Constant(ir.VectorType(ir.IntType(32), 2 * PACKET),
-                                                                          list(range(2 * PACKET))))
-            high = builder.shuffle_vector(parts[2], parts[2], ir.Constant(ir.VectorType(ir.IntType(32), 2 * PACKET),
-                                                                           list(range(2 * PACKET))))
-            return [builder.shuffle_vector(low, high, ir.Constant(ir.VectorType(ir.IntType(32), PACKET),
-                                                                  [3 * lane + axis for lane in range(PACKET)]))
-                    for axis in range(3)]
-
-        origin = lanes_by_axis(sig.args[0], origin_array)
-        direction = lanes_by_axis(sig.args[1], direction_array)
+        origin = packet_by_axis(context, builder, sig.args[0], origin_array, row)
+        direction = packet_by_axis(context, builder, sig.args[1], direction_array, row)
         ones = ir.Constant(doubles, [1.0] * PACKET)
         inverse = [builder.fdiv(ones, d) for d in direction]
         state_data = builder.bitcast(context.make_array(sig.args[3])(context, builder, state_array).data,
@@ -320,7 +324,7 @@ def bound_span(typingctx, origins, directions, first, packets, bounds):
     minima and maxima lane by lane, with no shuffle; the lanes of each axis are reduced once at
     the end. The inverse directions are bounded by the inverses of the extreme directions: a
     correctly rounded division is monotone, so each ray's own inverse lies between them."""
-    if not _rays_readable(origins, directions):
+    if not rays_readable(origins, directions):
         return None
     signature = types.int64(origins, directions, first, packets, bounds)
 

@@ -82,7 +82,7 @@ from .packet_slab import (
     enter_children_interval,
     load_packet,
 )
-from .packet_triangle import HIT_ROW, HIT_ROWS, SHEAR_ROW, SHEAR_ROWS, hits_by_lane
+from .packet_triangle import HIT_ROW, HIT_ROWS, NOT_SHARED, hits_by_lane, set_up_shear
 from .traverse_wide import push_child, visit_leaf
 from .wide import child_count, child_link
 from .wide_slab import highest_bit
@@ -98,7 +98,6 @@ _T_MIN = 6 * PACKET
 _BEST = 7 * PACKET
 _U = 8 * PACKET
 _V = 9 * PACKET
-_SX, _SY, _OKX, _OKY, _OKZ, _SZ = ((SHEAR_ROW + k) * PACKET for k in range(SHEAR_ROWS))
 _HIT_T, _HIT_U, _HIT_V = ((HIT_ROW + k) * PACKET for k in range(HIT_ROWS))
 LANE_ROWS = HIT_ROW + HIT_ROWS
 """Rows of :data:`PACKET` float64 a packet keeps per thread: the ray state
@@ -153,30 +152,6 @@ def _bound_group(state, bounds, group_first, group):
 
 
 @inline_kernel
-def _set_up_lanes(state, origins, directions, packet_first, n_lanes):
-    """Write each lane's triangle-test constants (:func:`rayaccel.geometry.primitive.ray_setup`:
-    shear, origin on the sheared axes) into ``state`` from row :data:`.packet_triangle.SHEAR_ROW`
-    on; returns whether the lanes share their axes, and lane 0's ``(kx, ky, kz)``."""
-    kx0, ky0, kz0 = 0, 0, 0
-    shared = True
-    for r in range(PACKET):
-        i = packet_first + min(r, n_lanes - 1)
-        ox, oy, oz, dx, dy, dz = ray_at(origins, directions, i)
-        _, _, _, _, _, _, kx, ky, kz, sx, sy, sz, okx, oky, okz = ray_setup(ox, oy, oz, dx, dy, dz)
-        state[_SX + r] = sx
-        state[_SY + r] = sy
-        state[_SZ + r] = sz
-        state[_OKX + r] = okx
-        state[_OKY + r] = oky
-        state[_OKZ + r] = okz
-        if r == 0:
-            kx0, ky0, kz0 = kx, ky, kz
-        elif kx != kx0 or ky != ky0 or kz != kz0:
-            shared = False
-    return shared, kx0, ky0, kz0
-
-
-@inline_kernel
 def _keep_lane_hit(state, best_prim, r, best_t, prim_r, best_u, best_v):
     """Store lane ``r``'s best hit when the leaf changed it; returns whether it did."""
     if prim_r == best_prim[r] and best_t == state[_BEST + r]:
@@ -215,7 +190,7 @@ def _leaf_lane_after_lane(mode, action, hit_slot, kind, geom, prim_order, first,
 def _leaf_by_triangle(geom, prim_order, first, count, lanes, done, kx, ky, kz, state, best_prim, any_hit):
     """:func:`_leaf_lane_after_lane` for a closest-hit or any-hit walk over triangles whose rays
     share the triangle test's axes ``kx, ky, kz`` (their constants set up by
-    :func:`_set_up_lanes`): each triangle tested on all the live rays at once
+    :func:`.packet_triangle.set_up_shear`): each triangle tested on all the live rays at once
     (:func:`.packet_triangle.hits_by_lane`), a hit kept as :func:`..actions.visit_prim_in_mode`
     keeps it."""
     improved = False
@@ -370,7 +345,9 @@ def _packet_walk(ray_first, ray_end, tid, records, links, prim_order, kind, geom
                             break
                         first = stack_link[tid, sp]
                         if lane_triangles and not lanes_set_up:
-                            shared_axes, kx, ky, kz = _set_up_lanes(state, origins, directions, packet_first, n_lanes)
+                            axes = set_up_shear(origins, directions, packet_first, state) if loaded else NOT_SHARED
+                            shared_axes = axes != NOT_SHARED
+                            kx, ky, kz = axes & 3, (axes >> 2) & 3, axes >> 4
                             lanes_set_up = True
                         if lane_triangles and shared_axes:
                             done, improved = _leaf_by_triangle(geom, prim_order, first, count, lanes, done, kx, ky,
