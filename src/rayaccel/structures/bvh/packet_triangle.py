@@ -1,4 +1,5 @@
-"""The watertight test of one triangle against every ray of a packet at once, in vector instructions.
+"""The watertight test of one triangle against every ray of a packet at once, in vector instructions,
+and the set-up of the rays' constants it reads.
 
 A camera packet's rays enter the same leaves, and the packet walk tested each of their
 triangles ray after ray. This test runs the watertight triangle test (Woop, Benthin & Wald,
@@ -67,8 +68,9 @@ def set_up_shear(typingctx, origins, directions, first, state):
     :func:`rayaccel.geometry.triangle.shear_setup` (``kz`` the dominant axis of the direction,
     ``kx`` and ``ky`` swapped where it points down ``kz``), and each lane computes its constants
     as the scalar set-up does, so to the bit. Returns ``kx + 4 ky + 16 kz`` when every ray has
-    the same axes, else :data:`NOT_SHARED`. Against the scalar set-up ray after ray: 77 ns a
-    packet of the forest's camera rays, one thread."""
+    the same axes, else :data:`NOT_SHARED`. The set-up ray after ray that it replaces took 77 ns
+    a packet of the forest's camera rays; against it, one thread, CPU time, forest camera and
+    shadow rays 1.03-1.10 times as fast, the full dragon's 0.99-1.04."""
     if not rays_readable(origins, directions):
         return None
     signature = types.int64(origins, directions, first, state)

@@ -13,8 +13,8 @@ primitives, with the single-ray walk's test (the same hits, to the bit). A full 
 rays share the triangle test's axes may instead test each triangle of the leaf on all its rays
 at once (:func:`.packet_triangle.hits_by_lane`, the rays' shear set up in vector lanes at the
 packet's first leaf by :func:`.packet_triangle.set_up_shear`), lane for lane the single-ray
-test's arithmetic. Closest-hit packets do so: forest camera rays on two threads, medians of 9 in alternating processes,
-22.3-23.3 -> 18.5-20.4 ms, the full dragon's 42.6-44.3 -> 40.2-42.6 ms; the forest's shadow
+test's arithmetic. Closest-hit packets do so: forest camera rays on two threads, medians of 9
+in alternating processes, 22.3-23.3 -> 18.5-20.4 ms, the full dragon's 42.6-44.3 -> 40.2-42.6 ms; the forest's shadow
 rays (one thread, medians of 5 processes each) 19.7 -> 18.7 ms, the dragon's unchanged.
 Any-hit shadow packets do so too (forest, one thread, medians of 4: 17.5 -> 15.6 ms; the
 dragon's 57.0 -> 58.6 ms, within the spread of the runs), and so do any-hit camera packets
