@@ -35,7 +35,7 @@ from numba.core import cgutils
 from numba.extending import intrinsic
 
 from .wide import WIDTH
-from .wide_slab import entered_children, tighten_lanes, tighten_to_slab
+from .wide_slab import entered_children, splat, tighten_lanes, tighten_to_slab
 
 __all__ = ["PACKET", "PACKET_ROWS", "BOUND_T_MIN", "BOUND_BEST", "BOUND_VALUES", "enter_children_interval",
            "enter_child_lanes", "enter_children_by_lane", "load_packet", "bound_span", "packet_by_axis",
@@ -53,13 +53,6 @@ BOUND_VALUES = 17
 box's ``lo``, 3-5 for ``hi``, as a float), the extreme origins that bound its rays' near and
 far distances, and the two ends of its rays' inverse directions; then, at :data:`BOUND_T_MIN`
 and :data:`BOUND_BEST`, the smallest ``t_min`` and the farthest best distance of its rays."""
-
-
-def _splat(builder, value, vector_type):
-    vector = ir.Constant(vector_type, ir.Undefined)
-    for lane in range(vector_type.count):
-        vector = builder.insert_element(vector, value, ir.IntType(32)(lane))
-    return vector
 
 
 def rays_readable(*arrays):
@@ -124,12 +117,12 @@ def enter_children_interval(typingctx, records, node, bounds, entry):
             pointer = builder.gep(row, [builder.mul(block, ir.Constant(intp, WIDTH))])
             return builder.fpext(builder.load(builder.bitcast(pointer, floats.as_pointer()), align=32), doubles)
 
-        enter = _splat(builder, value(BOUND_T_MIN), doubles)
-        exit_ = _splat(builder, value(BOUND_BEST), doubles)
+        enter = splat(builder, value(BOUND_T_MIN), doubles)
+        exit_ = splat(builder, value(BOUND_BEST), doubles)
         for axis in range(3):
             near_block = builder.fptosi(value(5 * axis), intp)
             far_block = builder.sub(ir.Constant(intp, 2 * axis + 3), near_block)
-            near_o, far_o, inv_low, inv_high = (_splat(builder, value(5 * axis + k), doubles) for k in range(1, 5))
+            near_o, far_o, inv_low, inv_high = (splat(builder, value(5 * axis + k), doubles) for k in range(1, 5))
             near_gap = builder.fsub(component(near_block), near_o)
             far_gap = builder.fsub(component(far_block), far_o)
             near_low, near_high = builder.fmul(near_gap, inv_low), builder.fmul(near_gap, inv_high)
@@ -161,7 +154,7 @@ def enter_child_lanes(typingctx, records, node, child, state, lanes):
 
         def corner(block):
             column = builder.add(ir.Constant(intp, WIDTH * block), child_value)
-            return _splat(builder, builder.fpext(builder.load(builder.gep(row, [column])), ir.DoubleType()), doubles)
+            return splat(builder, builder.fpext(builder.load(builder.gep(row, [column])), ir.DoubleType()), doubles)
 
         enter, exit_ = rows[6], rows[7]
         zero = ir.Constant(doubles, [0.0] * PACKET)
@@ -217,15 +210,15 @@ def enter_children_by_lane(typingctx, records, node, state, lanes, entry):
             in_lanes = builder.trunc(builder.lshr(active, int64(lane)), ir.IntType(1))
             before = builder.block
             with builder.if_then(in_lanes, likely=True):
-                enter = _splat(builder, value(6), doubles)
-                exit_ = _splat(builder, value(7), doubles)
+                enter = splat(builder, value(6), doubles)
+                exit_ = splat(builder, value(7), doubles)
                 for axis in range(3):
                     origin, inverse = value(axis), value(axis + 3)
                     positive = builder.fcmp_ordered(">=", inverse, ir.Constant(ir.DoubleType(), 0.0))
                     near_box = builder.select(positive, boxes[axis], boxes[axis + 3])
                     far_box = builder.select(positive, boxes[axis + 3], boxes[axis])
-                    enter, exit_ = tighten_to_slab(builder, near_box, far_box, _splat(builder, origin, doubles),
-                                                   _splat(builder, inverse, doubles), enter, exit_)
+                    enter, exit_ = tighten_to_slab(builder, near_box, far_box, splat(builder, origin, doubles),
+                                                   splat(builder, inverse, doubles), enter, exit_)
                 entered = builder.fcmp_ordered("<=", enter, exit_)
                 lane_entry = builder.select(entered, enter, missed)
                 lane_nearest = builder.select(builder.fcmp_ordered("<", lane_entry, nearest), lane_entry, nearest)

@@ -29,6 +29,7 @@ from numba.extending import intrinsic
 
 from ...geometry.triangle import DEGENERATE
 from .packet_slab import PACKET, PACKET_ROWS, packet_by_axis, rays_readable
+from .wide_slab import splat
 
 __all__ = ["SHEAR_ROW", "SHEAR_ROWS", "HIT_ROW", "HIT_ROWS", "NOT_SHARED", "set_up_shear", "hits_by_lane"]
 
@@ -142,13 +143,7 @@ def hits_by_lane(typingctx, state, lanes, ax, ay, az, bx, by, bz, cx, cy, cz):
 
         sx, sy, okx, oky, okz, sz = (builder.load(row(SHEAR_ROW + k), align=8) for k in range(SHEAR_ROWS))
 
-        def splat(value):
-            vector = ir.Constant(doubles, ir.Undefined)
-            for lane in range(PACKET):
-                vector = builder.insert_element(vector, value, ir.IntType(32)(lane))
-            return vector
-
-        a_x, a_y, a_z, b_x, b_y, b_z, c_x, c_y, c_z = (splat(value) for value in args[2:])
+        a_x, a_y, a_z, b_x, b_y, b_z, c_x, c_y, c_z = (splat(builder, value, doubles) for value in args[2:])
         az_ = builder.fsub(a_z, okz)
         bz_ = builder.fsub(b_z, okz)
         cz_ = builder.fsub(c_z, okz)

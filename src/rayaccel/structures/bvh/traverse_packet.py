@@ -14,8 +14,9 @@ rays share the triangle test's axes may instead test each triangle of the leaf o
 at once (:func:`.packet_triangle.hits_by_lane`, the rays' shear set up in vector lanes at the
 packet's first leaf by :func:`.packet_triangle.set_up_shear`), lane for lane the single-ray
 test's arithmetic. Closest-hit packets do so: forest camera rays on two threads, medians of 9
-in alternating processes, 22.3-23.3 -> 18.5-20.4 ms, the full dragon's 42.6-44.3 -> 40.2-42.6 ms; the forest's shadow
-rays (one thread, medians of 5 processes each) 19.7 -> 18.7 ms, the dragon's unchanged.
+in alternating processes, 22.3-23.3 -> 18.5-20.4 ms, the full dragon's 42.6-44.3 -> 40.2-42.6
+ms; the forest's shadow rays (one thread, medians of 5 processes each) 19.7 -> 18.7 ms, the
+dragon's unchanged.
 Any-hit shadow packets do so too (forest, one thread, medians of 4: 17.5 -> 15.6 ms; the
 dragon's 57.0 -> 58.6 ms, within the spread of the runs), and so do any-hit camera packets
 since ``occluded`` writes one byte a ray: against the lane-after-lane tests, one thread, CPU
@@ -201,11 +202,13 @@ def _leaf_by_triangle(geom, prim_order, first, count, lanes, done, kx, ky, kz, s
         hit = hits_by_lane(state, live, corner(geom, k, 0, kx), corner(geom, k, 0, ky), corner(geom, k, 0, kz),
                            corner(geom, k, 1, kx), corner(geom, k, 1, ky), corner(geom, k, 1, kz),
                            corner(geom, k, 2, kx), corner(geom, k, 2, ky), corner(geom, k, 2, kz))
+        if hit == 0:
+            continue
+        prim = prim_order[unsigned(k)]
         while hit != 0:
             r = highest_bit(hit)
             hit ^= 1 << r
             t = state[_HIT_T + r]
-            prim = prim_order[unsigned(k)]
             if is_closer(t, prim, state[_BEST + r], best_prim[r]):
                 improved |= _keep_lane_hit(state, best_prim, r, t, prim, state[_HIT_U + r], state[_HIT_V + r])
                 if any_hit:

@@ -32,7 +32,7 @@ from numba.extending import intrinsic
 
 from .wide import WIDTH
 
-__all__ = ["enter_children", "highest_bit", "tighten_lanes", "tighten_to_slab", "entered_children"]
+__all__ = ["enter_children", "highest_bit", "splat", "tighten_lanes", "tighten_to_slab", "entered_children"]
 
 
 @intrinsic
@@ -56,27 +56,29 @@ def enter_children(typingctx, records, node, near_x, near_y, near_z, origin, inv
         doubles = ir.VectorType(ir.DoubleType(), WIDTH)
         intp = context.get_value_type(types.intp)
 
-        def splat(value):
-            vector = ir.Constant(doubles, ir.Undefined)
-            for lane in range(WIDTH):
-                vector = builder.insert_element(vector, value, ir.IntType(32)(lane))
-            return vector
-
         def component(block):
             pointer = builder.gep(row, [builder.mul(block, ir.Constant(intp, WIDTH))])
             return builder.fpext(builder.load(builder.bitcast(pointer, floats.as_pointer()), align=32), doubles)
 
-        enter = splat(enter_limit)
-        exit_ = splat(exit_limit)
+        enter = splat(builder, enter_limit, doubles)
+        exit_ = splat(builder, exit_limit, doubles)
         for axis in range(3):
-            o = splat(builder.extract_value(origin_value, axis))
-            inv = splat(builder.extract_value(inv_value, axis))
+            o = splat(builder, builder.extract_value(origin_value, axis), doubles)
+            inv = splat(builder, builder.extract_value(inv_value, axis), doubles)
             near_block = context.cast(builder, nears[axis], sig.args[2 + axis], types.intp)
             far_block = builder.sub(ir.Constant(intp, 2 * axis + 3), near_block)
             enter, exit_ = tighten_to_slab(builder, component(near_block), component(far_block), o, inv, enter, exit_)
         return entered_children(context, builder, sig.args[9], entry_array, enter, exit_)
 
     return signature, codegen
+
+
+def splat(builder, value, vector_type):
+    """The IR of a vector of ``vector_type`` with ``value`` in every lane."""
+    vector = ir.Constant(vector_type, ir.Undefined)
+    for lane in range(vector_type.count):
+        vector = builder.insert_element(vector, value, ir.IntType(32)(lane))
+    return vector
 
 
 def tighten_lanes(builder, near, far, enter, exit_):
