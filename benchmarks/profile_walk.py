@@ -47,11 +47,12 @@ def trace(args) -> None:
     set_threads(args.threads)
     scene = ra.load_scene(args.scene)
     accel = ra.build(scene, args.method)
-    origins, directions = primary_rays(scene, args.side)
     t_min, t_max = 0.0, np.inf
     if args.rays == "incoherent":
         origins, directions = incoherent_rays(scene, args.side * args.side)
-    elif args.rays == "shadow":
+    else:
+        origins, directions = primary_rays(scene, args.side)
+    if args.rays == "shadow":
         hits = accel.intersect(origins, directions)
         origins, directions = shadow_rays(origins, directions, hits.t, light_position(scene))
         t_min, t_max = 1e-4, 1.0
@@ -115,8 +116,8 @@ def summarize(args) -> str:
             blocks[address // BLOCK_BYTES * BLOCK_BYTES] += share
         report.append("hottest 64-byte blocks: " + ", ".join(f"{address:#x} {100 * share:.1f} %"
                                                              for address, share in blocks.most_common(10)))
-        for share, address, _ in sorted(rows, reverse=True)[:HOT_INSTRUCTIONS]:
-            at = next(k for k, row in enumerate(rows) if row[1] == address)
+        for at in sorted(range(len(rows)), key=lambda k: rows[k][0], reverse=True)[:HOT_INSTRUCTIONS]:
+            share, address, _ = rows[at]
             report.append(f"\n{100 * share:.2f} % at {address:#x}:")
             report.extend(f"  {100 * s:6.2f}  {line}" for s, _, line in rows[max(0, at - CONTEXT_LINES):at + 3])
     return "\n".join(report)

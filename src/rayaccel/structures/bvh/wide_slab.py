@@ -18,8 +18,9 @@ then subtract, multiply and select on all eight children at once (on AVX2, as
 ``vminpd`` on pairs of ``ymm`` registers; on AVX-512 one ``zmm`` register
 each, since Numba sets no ``min-legal-vector-width`` and LLVM then takes
 512-bit vectors as legal; forcing pairs of ``ymm`` there made no walk
-faster: incoherent rays x0.98 to x1.01, camera rays x0.87). The arithmetic is exactly the
-scalar test's, lane by lane, in float64, so it culls exactly the same nodes.
+faster: incoherent rays x0.98 to x1.01, camera rays x0.87). The arithmetic
+is exactly the scalar test's, lane by lane, in float64, so it culls exactly
+the same nodes.
 It returns the entered children as the bits of an integer, which the
 traversal walks with :func:`highest_bit`, as Embree's does with its
 ``movemask``; computing the same test in float32 lanes instead was not faster
