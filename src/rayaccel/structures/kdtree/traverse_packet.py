@@ -1,0 +1,245 @@
+"""Packets of eight rays through the kd-tree, closest hit and any hit.
+
+Wald, Slusallek, Benthin & Wagner, "Interactive Rendering with Coherent Ray
+Tracing" (Eurographics 2001), trace coherent rays through a kd-tree in packets:
+rays whose directions share their signs meet every split plane from the same
+side, so they agree on which child is near. The packet then walks one path
+through the tree, each ray (lane) with its own interval ``[t0, t1]`` inside
+the current cell and a mask of the lanes still inside it. At an inner node each
+lane computes its plane distance, as the single-ray walk
+(:mod:`.traverse`) does with the same margins; the lanes that reach the far
+side go on the stack with their far intervals, the others follow the packet to
+the near side, and the packet goes far only if no lane goes near. A leaf tests
+its primitives with each of its live lanes in turn, with the single-ray test,
+so every ray gets the single walk's hits; a stacked cell is entered by the
+lanes whose best hit does not already lie before it (:func:`..base.settled_before`).
+One node fetch and one branch per step serve all eight rays, where the single
+walk pays a dependent fetch and a hard-to-predict branch per ray and step.
+
+A packet whose rays head to both sides along some axis, or lie parallel to an
+axis, has no common near side: its rays take the single-ray walk.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from llvmlite import ir
+from numba import types
+from numba.core import cgutils
+from numba.extending import intrinsic
+
+from ..._jit import chunk_kernel, inline_kernel, unsigned
+from ...geometry.box import clip_to_box
+from ...geometry.primitive import ray_setup
+from ...rays import ray_limit, result_row
+from ..actions import NEAREST, finish_ray_in_mode, intersect_references
+from ..base import EXIT_MARGIN, settled_before
+from ..bvh.wide_slab import highest_bit, splat
+from .layout import LEAF
+from .traverse import walk_singly
+
+__all__ = ["PACKET", "PACKET_ROWS", "kdtree_packet_kernel"]
+
+PACKET = 8
+_O = 0
+_INV = 3 * PACKET
+_T0 = 6 * PACKET
+_T1 = 7 * PACKET
+_T_MIN = 8 * PACKET
+_BEST = 9 * PACKET
+_U = 10 * PACKET
+_V = 11 * PACKET
+PACKET_ROWS = 12
+"""Rows of :data:`PACKET` float64 a packet keeps per thread: its rays' origins and reciprocal
+directions by axis, their intervals in the current cell, their ``t_min`` and best hits."""
+
+
+@inline_kernel
+def _load_packet(lo, hi, origins, directions, t_min, t_max, packet_first, n_lanes, state, best_prim):
+    """Load the rays of a packet into ``state`` and clip them to the tree's box: ``(lanes,
+    positive, coherent)``, the lanes whose ray meets the box, the sign of each axis's
+    direction (bit ``axis`` set where positive) and whether all rays share those signs, each
+    direction component with a finite reciprocal (no zero or subnormal one)."""
+    lanes = 0
+    positive = 0
+    coherent = True
+    for r in range(PACKET):
+        state[_T0 + r] = 0.0
+        state[_T1 + r] = 0.0
+        best_prim[r] = -1
+        state[_U + r] = 0.0
+        state[_V + r] = 0.0
+    for r in range(n_lanes):
+        i = packet_first + r
+        ray_t_min, ray_t_max = ray_limit(t_min, i), ray_limit(t_max, i)
+        state[_T_MIN + r] = ray_t_min
+        state[_BEST + r] = ray_t_max
+        signs = 0
+        for axis in range(3):
+            d = directions[i, axis]
+            inverse = 1.0 / d
+            state[_O + axis * PACKET + r] = origins[i, axis]
+            state[_INV + axis * PACKET + r] = inverse
+            coherent &= abs(inverse) < np.inf
+            signs |= (d > 0.0) << axis
+        if r == 0:
+            positive = signs
+        coherent &= signs == positive
+        t0, t1 = clip_to_box(lo, hi, origins[i, 0], origins[i, 1], origins[i, 2], directions[i, 0],
+                             directions[i, 1], directions[i, 2], ray_t_min, ray_t_max)
+        if t0 <= t1:
+            lanes |= 1 << r
+            state[_T0 + r] = t0
+            state[_T1 + r] = t1
+    return lanes, positive, coherent
+
+
+@intrinsic
+def _split_lanes(typingctx, state, axis, split, slot_t):
+    """Cut the eight lanes' intervals at the plane ``split`` on ``axis``, in vector lanes: the far
+    intervals go to ``slot_t`` (a stack slot: the eight ``t0``, then the eight ``t1``), and
+    each lane keeps the near part as its current interval in ``state``. Returns the lanes that
+    reach the near side in bits 0-7 and those that reach the far side in bits 8-15: the
+    single walk's choice (:func:`.traverse._cross_split`) with its arithmetic, lane by lane."""
+    signature = types.int64(state, axis, split, slot_t)
+
+    def codegen(context, builder, sig, args):
+        state_value, axis_value, split_value, slot_value = args
+        doubles = ir.VectorType(ir.DoubleType(), PACKET)
+        intp = context.get_value_type(types.intp)
+        state_data = context.make_array(sig.args[0])(context, builder, state_value).data
+        slot_data = context.make_array(sig.args[3])(context, builder, slot_value).data
+        row = context.cast(builder, axis_value, sig.args[1], types.intp)
+
+        def lanes_at(data, offset):
+            return builder.bitcast(builder.gep(data, [offset]), doubles.as_pointer())
+
+        def row_at(first):
+            return ir.Constant(intp, first)
+
+        origin = builder.load(lanes_at(state_data, builder.add(row_at(_O), builder.mul(row, row_at(PACKET)))), align=8)
+        inverse = builder.load(lanes_at(state_data, builder.add(row_at(_INV), builder.mul(row, row_at(PACKET)))),
+                               align=8)
+        t0 = builder.load(lanes_at(state_data, row_at(_T0)), align=8)
+        t1 = builder.load(lanes_at(state_data, row_at(_T1)), align=8)
+        margin = splat(builder, ir.Constant(ir.DoubleType(), EXIT_MARGIN), doubles)
+        fabs = cgutils.get_or_insert_function(builder.module, ir.FunctionType(doubles, [doubles]), "llvm.fabs.v8f64")
+        t_plane = builder.fmul(builder.fsub(splat(builder, split_value, doubles), origin), inverse)
+        low = builder.fsub(t0, builder.fmul(margin, builder.call(fabs, [t0])))
+        high = builder.fadd(t1, builder.fmul(margin, builder.call(fabs, [t1])))
+        goes_near = builder.fcmp_unordered(">=", t_plane, low)
+        goes_far = builder.fcmp_unordered("<=", t_plane, high)
+        above_t0 = builder.select(builder.fcmp_ordered(">", t_plane, t0), t_plane, t0)
+        cut = builder.select(builder.fcmp_ordered("<", above_t0, t1), above_t0, t1)
+        builder.store(builder.select(goes_near, cut, t0), lanes_at(slot_data, row_at(0)), align=8)
+        builder.store(t1, lanes_at(slot_data, row_at(PACKET)), align=8)
+        builder.store(builder.select(goes_far, cut, t1), lanes_at(state_data, row_at(_T1)), align=8)
+        int64 = ir.IntType(64)
+        near_bits = builder.zext(builder.bitcast(goes_near, ir.IntType(PACKET)), int64)
+        far_bits = builder.zext(builder.bitcast(goes_far, ir.IntType(PACKET)), int64)
+        return builder.or_(near_bits, builder.shl(far_bits, int64(PACKET)))
+
+    return signature, codegen
+
+
+@inline_kernel
+def _pop_lanes(state, best_prim, stack_node, stack_lanes, stack_t, tid, sp, done):
+    """The next stacked cell some lane must still enter: ``(node, lanes, sp)``, its intervals
+    restored into ``state``; ``node = -1`` when none is left. A lane drops out of a cell
+    that starts after its best hit, or once an any-hit walk has its hit (``done``)."""
+    row = unsigned(tid)
+    while sp > 0:
+        sp -= 1
+        slot = unsigned(sp)
+        lanes = stack_lanes[row, slot] & ~done
+        remaining = lanes
+        while remaining != 0:
+            r = highest_bit(remaining)
+            remaining ^= 1 << r
+            if settled_before(best_prim[r], state[_BEST + r], stack_t[row, slot, r]):
+                lanes ^= 1 << r
+        if lanes != 0:
+            for r in range(PACKET):
+                state[_T0 + r] = stack_t[row, slot, r]
+                state[_T1 + r] = stack_t[row, slot, PACKET + r]
+            return stack_node[row, slot], lanes, sp
+    return -1, 0, sp
+
+
+@inline_kernel
+def _visit_leaf_lanes(action, hit_slot, first, end, leaf_prims, mailbox, tid, kind, geom, origins, directions,
+                      packet_first, lanes, done, state, best_prim, any_hit):
+    """Test the leaf's references ``first`` to ``end - 1`` with each ray of ``lanes`` in turn, as
+    the single-ray walk does; returns ``done`` with the lanes of an any-hit walk that found a hit."""
+    remaining = lanes
+    while remaining != 0:
+        r = highest_bit(remaining)
+        remaining ^= 1 << r
+        i = packet_first + r
+        ray = ray_setup(origins[i, 0], origins[i, 1], origins[i, 2], directions[i, 0], directions[i, 1],
+                        directions[i, 2])
+        best_t, prim, best_u, best_v, _, _ = intersect_references(
+            NEAREST, action, result_row(hit_slot, i), first, end, leaf_prims, mailbox, tid, 0, kind, geom, True,
+            ray, state[_T_MIN + r], state[_BEST + r], best_prim[r], state[_U + r], state[_V + r], 0, 0, any_hit)
+        state[_BEST + r] = best_t
+        best_prim[r] = prim
+        state[_U + r] = best_u
+        state[_V + r] = best_v
+        if any_hit and prim >= 0:
+            done |= 1 << r
+    return done
+
+
+@chunk_kernel
+def kdtree_packet_kernel(ray_first, ray_end, tid, lo, hi, node_records, node_links, leaf_prims, kind, geom, origins,
+                         directions, t_min, t_max, hit_slot, any_hit, mailbox, ray_id_base, stack_node, stack_t,
+                         inv_dir, packet_lanes, packet_t, lanes_state, lanes_prim, action, work):
+    """The closest-hit and any-hit walk (an action of mode ``NEAREST``) of rays ``ray_first`` to
+    ``ray_end - 1`` in packets of :data:`PACKET` consecutive rays, the last one partial; a packet
+    without a common near side takes the single walk (:func:`.traverse.walk_singly`, with ``stack_node``,
+    ``stack_t`` and ``inv_dir``). A packet's stack is ``stack_node``, ``packet_lanes``
+    (threads, depth) int64 and ``packet_t`` (threads, depth, 2 * PACKET), its rays' state
+    ``lanes_state`` (threads, PACKET_ROWS * PACKET) and ``lanes_prim`` (threads, PACKET) int64."""
+    state = lanes_state[tid]
+    best_prim = lanes_prim[tid]
+    for packet_first in range(ray_first, ray_end, PACKET):
+        n_lanes = min(PACKET, ray_end - packet_first)
+        lanes, positive, coherent = _load_packet(lo, hi, origins, directions, t_min, t_max, packet_first, n_lanes,
+                                                 state, best_prim)
+        if not coherent:
+            walk_singly(packet_first, packet_first + n_lanes, tid, lo, hi, node_records, node_links, leaf_prims, kind,
+                        geom, origins, directions, t_min, t_max, hit_slot, any_hit, mailbox, ray_id_base, stack_node,
+                        stack_t, inv_dir, NEAREST, action, work)
+            continue
+        live = lanes
+        done = 0
+        node = 0 if lanes != 0 else -1
+        sp = 0
+        while node >= 0:
+            word = node_links[node, 3]
+            axis = word & 3
+            if axis != LEAF:
+                below = node_links[node, 2]
+                near = below if (positive >> axis) & 1 else below + 1
+                sides = _split_lanes(state, axis, np.float64(node_records[node, 0]), packet_t[tid, sp])
+                near_lanes = sides & lanes
+                far_lanes = (sides >> PACKET) & lanes
+                if far_lanes != 0:
+                    stack_node[tid, sp] = 2 * below + 1 - near
+                    packet_lanes[tid, sp] = far_lanes
+                    sp += 1
+                if near_lanes != 0:
+                    node = near
+                    lanes = near_lanes
+                    continue
+            elif word >> 2 != 0:
+                first = node_links[node, 2]
+                done = _visit_leaf_lanes(action, hit_slot, first, first + (word >> 2), leaf_prims, mailbox, tid, kind,
+                                         geom, origins, directions, packet_first, lanes & ~done, done, state,
+                                         best_prim, any_hit)
+                if any_hit and done == live:
+                    break
+            node, lanes, sp = _pop_lanes(state, best_prim, stack_node, packet_lanes, packet_t, tid, sp, done)
+        for r in range(n_lanes):
+            finish_ray_in_mode(NEAREST, action, result_row(hit_slot, packet_first + r), state[_BEST + r],
+                               best_prim[r], state[_U + r], state[_V + r])
