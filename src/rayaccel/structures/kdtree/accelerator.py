@@ -56,6 +56,7 @@ def _graft_nodes(node_split, node_link, placeholders, roots, splits, links, coun
 
 
 def _check_flag(name: str, value) -> bool:
+    """``value``, refused unless it is ``True`` or ``False``."""
     if not isinstance(value, bool):
         raise TypeError(f"{name} must be True or False, got {value!r}")
     return value

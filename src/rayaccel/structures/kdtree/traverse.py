@@ -80,8 +80,9 @@ def _pop_unsettled(stack_node, stack_t, row, sp, best_prim, best_t, t0, t1):
 
 
 @inline_kernel
-def walk_singly(ray_first, ray_end, tid, lo, hi, node_records, node_links, leaf_prims, kind, geom, origins, directions,
-          t_min, t_max, hit_slot, any_hit, mailbox, ray_id_base, stack_node, stack_t, inv_dir, mode, action, work):
+def walk_singly(ray_first, ray_end, tid, lo, hi, node_records, node_links, leaf_prims, kind, geom, origins,
+                directions, t_min, t_max, hit_slot, any_hit, mailbox, ray_id_base, stack_node, stack_t, inv_dir, mode,
+                action, work):
     """Trace rays ``ray_first`` to ``ray_end - 1`` (one chunk of :func:`rayaccel._jit.on_threads`), their
     stacks in row ``tid``; ``stack_node`` (threads, depth) int32 and ``stack_t`` (threads, depth, 2);
     ``node_links`` is ``node_records`` seen as int32; ``mailbox`` as in the uniform grid (empty for
@@ -148,9 +149,9 @@ def kdtree_closest_kernel(ray_first, ray_end, tid, lo, hi, node_records, node_li
                           inv_dir, action, work):
     """The closest-hit and any-hit walk (an action of mode ``NEAREST``), the other modes' code
     pruned before it is compiled (:func:`..actions.visit_prim_in_mode`)."""
-    walk_singly(ray_first, ray_end, tid, lo, hi, node_records, node_links, leaf_prims, kind, geom, origins, directions,
-          t_min, t_max, hit_slot, any_hit, mailbox, ray_id_base, stack_node, stack_t, inv_dir, NEAREST, action,
-          work)
+    walk_singly(ray_first, ray_end, tid, lo, hi, node_records, node_links, leaf_prims, kind, geom, origins,
+                directions, t_min, t_max, hit_slot, any_hit, mailbox, ray_id_base, stack_node, stack_t, inv_dir,
+                NEAREST, action, work)
 
 
 @chunk_kernel
@@ -158,6 +159,6 @@ def kdtree_crossings_kernel(ray_first, ray_end, tid, lo, hi, node_records, node_
                             origins, directions, t_min, t_max, hit_slot, any_hit, mailbox, ray_id_base, stack_node,
                             stack_t, inv_dir, action, work):
     """The walk for the other actions (counting, listing, winding), compiled at their first use."""
-    walk_singly(ray_first, ray_end, tid, lo, hi, node_records, node_links, leaf_prims, kind, geom, origins, directions,
-          t_min, t_max, hit_slot, any_hit, mailbox, ray_id_base, stack_node, stack_t, inv_dir, action.mode,
-          action, work)
+    walk_singly(ray_first, ray_end, tid, lo, hi, node_records, node_links, leaf_prims, kind, geom, origins,
+                directions, t_min, t_max, hit_slot, any_hit, mailbox, ray_id_base, stack_node, stack_t, inv_dir,
+                action.mode, action, work)

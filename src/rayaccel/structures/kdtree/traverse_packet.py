@@ -173,10 +173,11 @@ def _pop_lanes(state, best_prim, stack_node, stack_lanes, stack_t, tid, sp, done
 
 
 @inline_kernel
-def _visit_leaf_lanes(action, hit_slot, first, end, leaf_prims, mailbox, tid, kind, geom, origins, directions,
-                      packet_first, lanes, done, state, best_prim, any_hit):
+def _visit_leaf_lanes(action, hit_slot, first, end, leaf_prims, mailbox, tid, ray_id_base, kind, geom, origins,
+                      directions, packet_first, lanes, done, state, best_prim, any_hit):
     """Test the leaf's references ``first`` to ``end - 1`` with each ray of ``lanes`` in turn, as
-    the single-ray walk does; returns ``done`` with the lanes of an any-hit walk that found a hit."""
+    the single-ray walk does (each ray its own mailbox stamp, where there is a mailbox); returns
+    ``done`` with the lanes of an any-hit walk that found a hit."""
     remaining = lanes
     while remaining != 0:
         r = highest_bit(remaining)
@@ -185,8 +186,9 @@ def _visit_leaf_lanes(action, hit_slot, first, end, leaf_prims, mailbox, tid, ki
         ray = ray_setup(origins[i, 0], origins[i, 1], origins[i, 2], directions[i, 0], directions[i, 1],
                         directions[i, 2])
         best_t, prim, best_u, best_v, _, _ = intersect_references(
-            NEAREST, action, result_row(hit_slot, i), first, end, leaf_prims, mailbox, tid, 0, kind, geom, True,
-            ray, state[_T_MIN + r], state[_BEST + r], best_prim[r], state[_U + r], state[_V + r], 0, 0, any_hit)
+            NEAREST, action, result_row(hit_slot, i), first, end, leaf_prims, mailbox, tid, ray_id_base + i, kind,
+            geom, True, ray, state[_T_MIN + r], state[_BEST + r], best_prim[r], state[_U + r], state[_V + r], 0, 0,
+            any_hit)
         state[_BEST + r] = best_t
         best_prim[r] = prim
         state[_U + r] = best_u
@@ -202,8 +204,8 @@ def kdtree_packet_kernel(ray_first, ray_end, tid, lo, hi, node_records, node_lin
                          inv_dir, packet_lanes, packet_t, lanes_state, lanes_prim, action, work):
     """The closest-hit and any-hit walk (an action of mode ``NEAREST``) of rays ``ray_first`` to
     ``ray_end - 1`` in packets of :data:`PACKET` consecutive rays, the last one partial; a packet
-    without a common near side takes the single walk (:func:`.traverse.walk_singly`, with ``stack_node``,
-    ``stack_t`` and ``inv_dir``). A packet's stack is ``stack_node``, ``packet_lanes``
+    without a common near side takes the single walk (:func:`.traverse.walk_singly`, with
+    ``stack_node``, ``stack_t`` and ``inv_dir``). A packet's stack is ``stack_node``, ``packet_lanes``
     (threads, depth) int64 and ``packet_t`` (threads, depth, 2 * PACKET), its rays' state
     ``lanes_state`` (threads, PACKET_ROWS * PACKET) and ``lanes_prim`` (threads, PACKET) int64."""
     state = lanes_state[tid]
@@ -240,9 +242,9 @@ def kdtree_packet_kernel(ray_first, ray_end, tid, lo, hi, node_records, node_lin
                     continue
             elif word >> 2 != 0:
                 first = node_links[node, 2]
-                done = _visit_leaf_lanes(action, hit_slot, first, first + (word >> 2), leaf_prims, mailbox, tid, kind,
-                                         geom, origins, directions, packet_first, lanes & ~done, done, state,
-                                         best_prim, any_hit)
+                done = _visit_leaf_lanes(action, hit_slot, first, first + (word >> 2), leaf_prims, mailbox, tid,
+                                         ray_id_base, kind, geom, origins, directions, packet_first, lanes & ~done,
+                                         done, state, best_prim, any_hit)
                 if any_hit and done == live:
                     break
             node, lanes, sp = _pop_lanes(state, best_prim, stack_node, packet_lanes, packet_t, tid, sp, done)
