@@ -83,6 +83,21 @@ def axis_parallel_rays(scene, n, seed=0):
     return origins, directions
 
 
+def one_eye_vertex_and_edge_rays(mesh, n, eye_offset, seed=5):
+    """Rays from one eye, at ``eye_offset`` times the mesh's size from its centre, aimed exactly at
+    ``n`` vertices and edge midpoints and sorted by direction, so that neighbouring rays head
+    alike as a camera's do."""
+    rng = np.random.default_rng(seed)
+    b = mesh.bounds()
+    faces = mesh.faces[rng.integers(0, len(mesh.faces), n)]
+    targets = mesh.vertices[faces[:, 0]].copy()
+    targets[::2] = 0.5 * (mesh.vertices[faces[::2, 0]] + mesh.vertices[faces[::2, 1]])
+    eye = 0.5 * (b.scene_lo + b.scene_hi) + np.asarray(eye_offset) * np.max(b.scene_hi - b.scene_lo)
+    directions = targets - eye
+    directions = directions[np.lexsort((directions[:, 0] // 1e-3, directions[:, 1] // 1e-3))]
+    return np.broadcast_to(eye, directions.shape).copy(), directions
+
+
 def assert_same_hits(reference, hits):
     """Hit for hit: the same primitive, the same distance and barycentrics; where both carry
     ``geom`` and the scene is a plain mesh or sphere set, 0 on a hit and -1 on a miss."""

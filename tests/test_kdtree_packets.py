@@ -5,7 +5,14 @@ from __future__ import annotations
 import numba
 import numpy as np
 import pytest
-from conftest import assert_same_hits, axis_parallel_rays, camera_rays, random_rays, vertex_and_edge_rays
+from conftest import (
+    assert_same_hits,
+    axis_parallel_rays,
+    camera_rays,
+    one_eye_vertex_and_edge_rays,
+    random_rays,
+    vertex_and_edge_rays,
+)
 from test_packets import shadow_rays
 
 import rayaccel as ra
@@ -98,15 +105,9 @@ def test_packets_of_one_origin_through_vertices_and_edges_match_brute_force(smal
     """Camera-like rays from one far point aimed exactly at vertices and edge midpoints, sorted
     by direction so that most packets share their signs: a ray through an edge or a vertex
     must hit exactly the triangles brute force hits."""
-    rng = np.random.default_rng(5)
+    origins, directions = one_eye_vertex_and_edge_rays(small_dragon, 3000, (0.3, 0.2, 4.0))
     b = small_dragon.bounds()
-    faces = small_dragon.faces[rng.integers(0, len(small_dragon.faces), 3000)]
-    targets = small_dragon.vertices[faces[:, 0]].copy()
-    targets[::2] = 0.5 * (small_dragon.vertices[faces[::2, 0]] + small_dragon.vertices[faces[::2, 1]])
-    eye = 0.5 * (b.scene_lo + b.scene_hi) + np.array([0.3, 0.2, 4.0]) * np.max(b.scene_hi - b.scene_lo)
-    directions = targets - eye
-    directions = directions[np.lexsort((directions[:, 0] // 1e-3, directions[:, 1] // 1e-3))]
-    origins = np.broadcast_to(eye, directions.shape).copy()
+    rng = np.random.default_rng(5)
     assert packets_pay(prepare_rays(origins, directions), b.scene_lo, b.scene_hi)
     brute, packets, _ = brute_packets_single(small_dragon)
     assert_all_queries_match(brute, [packets], origins, directions)

@@ -10,6 +10,7 @@ from conftest import (
     assert_same_hits,
     axis_parallel_rays,
     camera_rays,
+    one_eye_vertex_and_edge_rays,
     random_rays,
     vertex_and_edge_rays,
 )
@@ -155,15 +156,8 @@ def test_packets_of_one_origin_through_vertices_and_edges_match_brute_force(smal
     sorted by direction, so that a packet's rays share the triangle test's axes and a camera
     packet tests each triangle on all its rays at once; the rays through an edge or a vertex
     must hit exactly the triangles brute force hits, with or without limits."""
+    origins, directions = one_eye_vertex_and_edge_rays(small_dragon, 3000, (0.0, 0.0, 4.0))
     rng = np.random.default_rng(5)
-    b = small_dragon.bounds()
-    faces = small_dragon.faces[rng.integers(0, len(small_dragon.faces), 3000)]
-    targets = small_dragon.vertices[faces[:, 0]].copy()
-    targets[::2] = 0.5 * (small_dragon.vertices[faces[::2, 0]] + small_dragon.vertices[faces[::2, 1]])
-    eye = 0.5 * (b.scene_lo + b.scene_hi) + np.array([0.0, 0.0, 4.0]) * np.max(b.scene_hi - b.scene_lo)
-    directions = targets - eye
-    directions = directions[np.lexsort((directions[:, 0] // 1e-3, directions[:, 1] // 1e-3))]
-    origins = np.broadcast_to(eye, directions.shape).copy()
     brute, packets, _ = brute_and_packets(small_dragon)
     assert_same_hits(brute.intersect(origins, directions), packets.intersect(origins, directions))
     t_max = rng.uniform(0.99, 1.01, len(directions))
