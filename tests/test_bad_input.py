@@ -4,10 +4,12 @@ from __future__ import annotations
 
 import gzip
 
+import numba
 import numpy as np
 import pytest
 
 import rayaccel as ra
+from rayaccel._validate import unusable_ray, unusable_rays
 
 TRIANGLE = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0]])
 
@@ -199,3 +201,41 @@ def test_a_build_larger_than_the_free_memory_is_refused_before_it_starts(monkeyp
     scene.add(mesh)
     with pytest.raises(MemoryError, match="GiB"):
         ra.build(scene, "bvh-binned")
+
+
+@numba.njit(cache=False)
+def _unusable_in_lanes_and_alone(origins, directions, first, end):
+    alone = 0
+    for i in range(first, end):
+        alone += unusable_ray(origins[i, 0], origins[i, 1], origins[i, 2], directions[i, 0], directions[i, 1],
+                              directions[i, 2])
+    return unusable_rays(origins, directions, first, end), alone
+
+
+@pytest.mark.parametrize("layout", ["float64", "float32", "fortran"])
+def test_the_walks_ray_check_counts_each_unusable_ray_once(layout):
+    """The check the walks run on a span of rays, eight at a time in vector lanes on contiguous
+    arrays, counts exactly the rays that the check of one ray refuses: NaN and infinite
+    coordinates anywhere, all-zero directions of either sign, and not tiny or huge ones."""
+    rng = np.random.default_rng(4)
+    planted = [np.nan, np.inf, -np.inf, 0.0, -0.0, 1e-320, 1e308]
+    found = 0
+    for _ in range(400):
+        n = int(rng.integers(0, 40))
+        origins, directions = rng.normal(size=(n, 3)), rng.normal(size=(n, 3))
+        for _ in range(int(rng.integers(0, 6)) if n else 0):
+            array = origins if rng.random() < 0.5 else directions
+            array[rng.integers(0, n), rng.integers(0, 3)] = rng.choice(planted)
+            if rng.random() < 0.3:
+                directions[rng.integers(0, n)] = rng.choice([0.0, -0.0], 3)
+        if layout == "float32":
+            with np.errstate(over="ignore"):
+                origins, directions = origins.astype(np.float32), directions.astype(np.float32)
+        elif layout == "fortran":
+            origins, directions = np.asfortranarray(origins), np.asfortranarray(directions)
+        first = int(rng.integers(0, n + 1))
+        end = int(rng.integers(first, n + 1))
+        in_lanes, alone = _unusable_in_lanes_and_alone(origins, directions, first, end)
+        assert in_lanes == alone
+        found += alone
+    assert found > 100
