@@ -10,6 +10,7 @@ from numba.core import cgutils
 from numba.extending import intrinsic, overload
 
 from ._jit import inline_kernel, kernel, on_threads
+from ._ray_lanes import LANES, rays_by_axis, rays_readable
 
 __all__ = ["as_points", "as_index_triples", "as_per_ray", "as_positive_int", "check_number", "first_zero_row",
            "check_ray_arrays", "unusable_ray", "unusable_rays"]
@@ -42,58 +43,32 @@ def unusable_ray(ox, oy, oz, dx, dy, dz):
     return nonfinite | ((dx == 0.0) & (dy == 0.0) & (dz == 0.0))
 
 
-_LANES = 8
-
-
-def _lanes_readable(array_type) -> bool:
-    """Whether :func:`_unusable_eight` reads an array of this Numba type: C-contiguous float64 or float32."""
-    return isinstance(array_type, types.Array) and array_type.layout == "C" and \
-        array_type.dtype in (types.float64, types.float32)
-
-
 @intrinsic
 def _unusable_eight(typingctx, origins, directions, first):
-    """How many of the eight rays from row ``first`` are :func:`unusable_ray`, in vector lanes: each
-    array's 24 numbers read in three contiguous loads (float32 widened exactly) and shuffled
-    into one lane per ray. Written as a loop over the rays, the check compiled to gathers, one
-    per coordinate of eight rays, which took a quarter of a forest camera query on an AMD EPYC
-    (most of its rays miss the scene, so the check is most of their cost)."""
-    if not (_lanes_readable(origins) and _lanes_readable(directions)):
+    """How many of the eight rays from row ``first`` are :func:`unusable_ray`, in vector lanes
+    (:func:`rayaccel._ray_lanes.rays_by_axis`). Written as a loop over the rays, the check
+    compiled to gathers, one per coordinate of eight rays, which held about 40 % of the
+    packet walk's samples on the forest's camera rays (any hit, one thread, AMD EPYC): most
+    of those rays miss the scene, so the check was most of their cost."""
+    if not rays_readable(origins, directions):
         return None
     signature = types.int64(origins, directions, first)
 
     def codegen(context, builder, sig, args):
-        doubles = ir.VectorType(ir.DoubleType(), _LANES)
-        intp = context.get_value_type(types.intp)
+        doubles = ir.VectorType(ir.DoubleType(), LANES)
         row = context.cast(builder, args[2], sig.args[2], types.intp)
-
-        def by_axis(array_type, array):
-            start = builder.gep(context.make_array(array_type)(context, builder, array).data,
-                                [builder.mul(row, ir.Constant(intp, 3))])
-            element = ir.VectorType(context.get_value_type(array_type.dtype), _LANES)
-            parts = []
-            for k in range(3):
-                pointer = builder.bitcast(builder.gep(start, [ir.Constant(intp, _LANES * k)]), element.as_pointer())
-                part = builder.load(pointer, align=4)
-                parts.append(part if array_type.dtype == types.float64 else builder.fpext(part, doubles))
-            sixteen = ir.Constant(ir.VectorType(ir.IntType(32), 2 * _LANES), list(range(2 * _LANES)))
-            low = builder.shuffle_vector(parts[0], parts[1], sixteen)
-            high = builder.shuffle_vector(parts[2], parts[2], sixteen)
-            return [builder.shuffle_vector(low, high, ir.Constant(ir.VectorType(ir.IntType(32), _LANES),
-                                                                   [3 * lane + axis for lane in range(_LANES)]))
-                    for axis in range(3)]
-
-        zero = ir.Constant(doubles, [0.0] * _LANES)
-        coordinates = by_axis(sig.args[0], args[0]) + by_axis(sig.args[1], args[1])
+        zero = ir.Constant(doubles, [0.0] * LANES)
+        coordinates = (rays_by_axis(context, builder, sig.args[0], args[0], row)
+                       + rays_by_axis(context, builder, sig.args[1], args[1], row))
         total = builder.fmul(coordinates[0], zero)
         for value in coordinates[1:]:
             total = builder.fadd(total, builder.fmul(value, zero))
         bad = builder.fcmp_unordered("!=", total, zero)
-        still = builder.and_(builder.fcmp_ordered("==", coordinates[3], zero),
-                             builder.fcmp_ordered("==", coordinates[4], zero))
-        bad = builder.or_(bad, builder.and_(still, builder.fcmp_ordered("==", coordinates[5], zero)))
+        zero_xy = builder.and_(builder.fcmp_ordered("==", coordinates[3], zero),
+                               builder.fcmp_ordered("==", coordinates[4], zero))
+        bad = builder.or_(bad, builder.and_(zero_xy, builder.fcmp_ordered("==", coordinates[5], zero)))
         int64 = ir.IntType(64)
-        mask = builder.zext(builder.bitcast(bad, ir.IntType(_LANES)), int64)
+        mask = builder.zext(builder.bitcast(bad, ir.IntType(LANES)), int64)
         popcount = cgutils.get_or_insert_function(builder.module, ir.FunctionType(int64, [int64]), "llvm.ctpop.i64")
         return builder.call(popcount, [mask])
 
@@ -106,13 +81,13 @@ def unusable_rays(origins, directions, first, end):
 
 @overload(unusable_rays, inline="always")
 def _unusable_rays(origins, directions, first, end):
-    if _lanes_readable(origins) and _lanes_readable(directions):
+    if rays_readable(origins, directions):
         def in_lanes(origins, directions, first, end):
             found = 0
             i = first
-            while i + _LANES <= end:
+            while i + LANES <= end:
                 found += _unusable_eight(origins, directions, i)
-                i += _LANES
+                i += LANES
             return found + _unusable_one_by_one(origins, directions, i, end)
         return in_lanes
 

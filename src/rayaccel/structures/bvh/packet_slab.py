@@ -34,14 +34,14 @@ from numba import types
 from numba.core import cgutils
 from numba.extending import intrinsic
 
+from ..._ray_lanes import LANES, load_eight, rays_by_axis, rays_readable
 from .wide import WIDTH
 from .wide_slab import entered_children, splat, tighten_lanes, tighten_to_slab
 
 __all__ = ["PACKET", "PACKET_ROWS", "BOUND_T_MIN", "BOUND_BEST", "BOUND_VALUES", "enter_children_interval",
-           "enter_child_lanes", "enter_children_by_lane", "load_packet", "bound_span", "packet_by_axis",
-           "rays_readable"]
+           "enter_child_lanes", "enter_children_by_lane", "load_packet", "bound_span"]
 
-PACKET = 8
+PACKET = LANES
 """Rays per packet, one per vector lane."""
 PACKET_ROWS = 8
 """Rows of :data:`PACKET` float64 in a packet's ray state: origin x, y, z, inverse
@@ -53,38 +53,6 @@ BOUND_VALUES = 17
 box's ``lo``, 3-5 for ``hi``, as a float), the extreme origins that bound its rays' near and
 far distances, and the two ends of its rays' inverse directions; then, at :data:`BOUND_T_MIN`
 and :data:`BOUND_BEST`, the smallest ``t_min`` and the farthest best distance of its rays."""
-
-
-def rays_readable(*arrays):
-    """Whether ray arrays are ones :func:`_load_eight` reads: C-contiguous float64 or float32."""
-    return all(a.layout == "C" and a.dtype in (types.float64, types.float32) for a in arrays)
-
-
-def _load_eight(builder, array_type, pointer):
-    """Eight consecutive numbers of a float64 or float32 array from ``pointer`` as a vector of
-    eight float64 (float32 widened exactly, as :func:`rayaccel.rays.ray_at` widens them)."""
-    doubles = ir.VectorType(ir.DoubleType(), PACKET)
-    if array_type.dtype == types.float64:
-        return builder.load(builder.bitcast(pointer, doubles.as_pointer()), align=8)
-    floats = ir.VectorType(ir.FloatType(), PACKET)
-    return builder.fpext(builder.load(builder.bitcast(pointer, floats.as_pointer()), align=4), doubles)
-
-
-def packet_by_axis(context, builder, array_type, array, row):
-    """The :data:`PACKET` rows from ``row`` (an intp value) of an (n, 3) ray array that
-    :func:`rays_readable` accepts, as three vectors of eight float64, x, y and z, one lane a ray:
-    three loads of eight numbers, shuffled from rows to lanes."""
-    intp = context.get_value_type(types.intp)
-    data = context.make_array(array_type)(context, builder, array).data
-    start = builder.gep(data, [builder.mul(row, ir.Constant(intp, 3))])
-    parts = [_load_eight(builder, array_type, builder.gep(start, [ir.Constant(intp, PACKET * k)])) for k in range(3)]
-    low = builder.shuffle_vector(parts[0], parts[1], ir.Constant(ir.VectorType(ir.IntType(32), 2 * PACKET),
-                                                                  list(range(2 * PACKET))))
-    high = builder.shuffle_vector(parts[2], parts[2], ir.Constant(ir.VectorType(ir.IntType(32), 2 * PACKET),
-                                                                   list(range(2 * PACKET))))
-    return [builder.shuffle_vector(low, high, ir.Constant(ir.VectorType(ir.IntType(32), PACKET),
-                                                          [3 * lane + axis for lane in range(PACKET)]))
-            for axis in range(3)]
 
 
 def _record_row(context, builder, records_type, records, node_type, node):
@@ -257,8 +225,8 @@ def load_packet(typingctx, origins, directions, first, state, bounds):
         double = ir.DoubleType()
         doubles = ir.VectorType(double, PACKET)
         row = context.cast(builder, first_row, sig.args[2], types.intp)
-        origin = packet_by_axis(context, builder, sig.args[0], origin_array, row)
-        direction = packet_by_axis(context, builder, sig.args[1], direction_array, row)
+        origin = rays_by_axis(context, builder, sig.args[0], origin_array, row)
+        direction = rays_by_axis(context, builder, sig.args[1], direction_array, row)
         ones = ir.Constant(doubles, [1.0] * PACKET)
         inverse = [builder.fdiv(ones, d) for d in direction]
         state_data = builder.bitcast(context.make_array(sig.args[3])(context, builder, state_array).data,
@@ -345,7 +313,7 @@ def bound_span(typingctx, origins, directions, first, packets, bounds):
             for array in range(2):
                 block = builder.gep(starts[array], [offset])
                 for part in range(3):
-                    values = _load_eight(builder, sig.args[array],
+                    values = load_eight(builder, sig.args[array],
                                          builder.gep(block, [ir.Constant(intp, PACKET * part)]))
                     for compare in ("<", ">"):
                         slot = running[array, part, compare]

@@ -27,8 +27,9 @@ from numba import types
 from numba.core import cgutils
 from numba.extending import intrinsic
 
+from ..._ray_lanes import rays_by_axis, rays_readable
 from ...geometry.triangle import DEGENERATE
-from .packet_slab import PACKET, PACKET_ROWS, packet_by_axis, rays_readable
+from .packet_slab import PACKET, PACKET_ROWS
 from .wide_slab import splat
 
 __all__ = ["SHEAR_ROW", "SHEAR_ROWS", "HIT_ROW", "HIT_ROWS", "NOT_SHARED", "set_up_shear", "hits_by_lane"]
@@ -83,8 +84,8 @@ def set_up_shear(typingctx, origins, directions, first, state):
         mask_type = ir.IntType(PACKET)
         doubles = ir.VectorType(ir.DoubleType(), PACKET)
         row = context.cast(builder, first_row, sig.args[2], types.intp)
-        origin = packet_by_axis(context, builder, sig.args[0], origin_array, row)
-        direction = packet_by_axis(context, builder, sig.args[1], direction_array, row)
+        origin = rays_by_axis(context, builder, sig.args[0], origin_array, row)
+        direction = rays_by_axis(context, builder, sig.args[1], direction_array, row)
         ax, ay, az = (_fabs(builder, d) for d in direction)
         x_major = builder.and_(builder.fcmp_ordered(">=", ax, ay), builder.fcmp_ordered(">=", ax, az))
         y_major = builder.and_(builder.not_(x_major), builder.fcmp_ordered(">=", ay, az))

@@ -1,0 +1,51 @@
+"""Eight rays' coordinates in vector lanes, for the LLVM intrinsics that handle rays side by side.
+
+A C-contiguous (n, 3) ray array holds eight consecutive rays in 24 consecutive
+numbers: three vector loads fetch them, and two shuffles put each axis of the
+eight rays into one vector, one lane a ray. The packet walks
+(:mod:`rayaccel.structures.bvh.packet_slab`) and the walks' ray check
+(:func:`rayaccel._validate.unusable_rays`) read rays this way; a loop over the
+rays instead compiles to gathers, one per coordinate of eight rays.
+"""
+
+from __future__ import annotations
+
+from llvmlite import ir
+from numba import types
+
+__all__ = ["LANES", "rays_readable", "load_eight", "rays_by_axis"]
+
+LANES = 8
+"""Rays read at once, one per vector lane."""
+
+
+def rays_readable(*arrays) -> bool:
+    """Whether ray arrays (Numba types) are ones :func:`load_eight` reads: C-contiguous float64 or float32."""
+    return all(isinstance(a, types.Array) and a.layout == "C" and a.dtype in (types.float64, types.float32)
+               for a in arrays)
+
+
+def load_eight(builder, array_type, pointer):
+    """Eight consecutive numbers of a float64 or float32 array from ``pointer`` as a vector of
+    eight float64 (float32 widened exactly, as :func:`rayaccel.rays.ray_at` widens them)."""
+    doubles = ir.VectorType(ir.DoubleType(), LANES)
+    if array_type.dtype == types.float64:
+        return builder.load(builder.bitcast(pointer, doubles.as_pointer()), align=8)
+    floats = ir.VectorType(ir.FloatType(), LANES)
+    return builder.fpext(builder.load(builder.bitcast(pointer, floats.as_pointer()), align=4), doubles)
+
+
+def rays_by_axis(context, builder, array_type, array, row):
+    """The :data:`LANES` rows from ``row`` (an intp value) of an (n, 3) ray array that
+    :func:`rays_readable` accepts, as three vectors of eight float64, x, y and z, one lane a ray:
+    three loads of eight numbers, shuffled from rows to lanes."""
+    intp = context.get_value_type(types.intp)
+    data = context.make_array(array_type)(context, builder, array).data
+    start = builder.gep(data, [builder.mul(row, ir.Constant(intp, 3))])
+    parts = [load_eight(builder, array_type, builder.gep(start, [ir.Constant(intp, LANES * k)])) for k in range(3)]
+    sixteen = ir.Constant(ir.VectorType(ir.IntType(32), 2 * LANES), list(range(2 * LANES)))
+    low = builder.shuffle_vector(parts[0], parts[1], sixteen)
+    high = builder.shuffle_vector(parts[2], parts[2], sixteen)
+    return [builder.shuffle_vector(low, high, ir.Constant(ir.VectorType(ir.IntType(32), LANES),
+                                                          [3 * lane + axis for lane in range(LANES)]))
+            for axis in range(3)]
