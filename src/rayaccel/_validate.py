@@ -12,7 +12,8 @@ from numba.extending import intrinsic, overload
 from ._jit import inline_kernel, kernel, on_threads
 from ._ray_lanes import LANES, rays_by_axis, rays_readable
 
-__all__ = ["as_points", "as_index_triples", "as_per_ray", "as_positive_int", "check_number", "first_zero_row",
+__all__ = ["as_points", "as_index_triples", "as_per_ray", "as_positive_int", "check_flag", "check_number",
+           "first_zero_row",
            "check_ray_arrays", "unusable_ray", "unusable_rays"]
 
 
@@ -216,6 +217,13 @@ def as_positive_int(name: str, value) -> int:
     if value < 1:
         raise ValueError(f"{name} must be at least 1, got {value}")
     return int(value)
+
+
+def check_flag(name: str, value) -> bool:
+    """``value`` of option ``name``, refused with a ``TypeError`` unless it is ``True`` or ``False``."""
+    if not isinstance(value, bool):
+        raise TypeError(f"{name} must be True or False, got {value!r}")
+    return value
 
 
 def check_number(name, value, *, integer=False, minimum=0.0, inclusive=False, maximum=None):

@@ -8,7 +8,7 @@ import numba
 import numpy as np
 
 from ..._jit import thread_count, thread_rows
-from ..._validate import check_number
+from ..._validate import check_flag, check_number
 from ...geometry.gather import layout_nbytes, layout_rows
 from ...geometry.kdop import KDOP_NORMALS, kdop_surface_areas
 from ...geometry.kinds import TRIANGLE
@@ -141,8 +141,7 @@ class BoundingVolumeHierarchy(Accelerator):
             raise ValueError(f"sphere_fit must be 'primitives' or 'children', got {sphere_fit!r}")
         if width not in (2, WIDTH) or isinstance(width, bool):
             raise ValueError(f"width must be 2 or {WIDTH}, got {width!r}")
-        if not isinstance(reinsertion, bool):
-            raise TypeError(f"reinsertion must be True or False, got {reinsertion!r}")
+        check_flag("reinsertion", reinsertion)
         options = {"max_leaf_size": max_leaf_size, "traversal_cost": traversal_cost,
                    "intersection_cost": intersection_cost, "bounds": bounds, "reinsertion": reinsertion,
                    **builder_options}
@@ -151,10 +150,8 @@ class BoundingVolumeHierarchy(Accelerator):
         if bounds == "aabb":
             options["width"] = width
         if wide:
-            for name, value in (("packets", packets), ("interleave", interleave)):
-                if not isinstance(value, bool):
-                    raise TypeError(f"{name} must be True or False, got {value!r}")
-                options[name] = value
+            options["packets"] = check_flag("packets", packets)
+            options["interleave"] = check_flag("interleave", interleave)
         super().__init__(scene, options)
         start = time.perf_counter()
         prim_bounds = self._primitive_bounds()

@@ -314,7 +314,7 @@ def bound_span(typingctx, origins, directions, first, packets, bounds):
                 block = builder.gep(starts[array], [offset])
                 for part in range(3):
                     values = load_eight(builder, sig.args[array],
-                                         builder.gep(block, [ir.Constant(intp, PACKET * part)]))
+                                        builder.gep(block, [ir.Constant(intp, PACKET * part)]))
                     for compare in ("<", ">"):
                         slot = running[array, part, compare]
                         kept = builder.load(slot)

@@ -10,7 +10,7 @@ import numba
 import numpy as np
 
 from ..._jit import kernel, thread_count, thread_rows
-from ..._validate import check_number
+from ..._validate import check_flag, check_number
 from ...geometry.gather import layout_nbytes
 from ...ray_order import MIN_PACKET_RAYS, lane_packets_pay, packets_pay, sample_neighbours
 from ...stats import box_area, surface_area_stats
@@ -53,13 +53,6 @@ def _graft_nodes(node_split, node_link, placeholders, roots, splits, links, coun
         target += counts[f] - roots[f]
         ref_first += refs[f]
         placeholder += roots[f]
-
-
-def _check_flag(name: str, value) -> bool:
-    """``value``, refused unless it is ``True`` or ``False``."""
-    if not isinstance(value, bool):
-        raise TypeError(f"{name} must be True or False, got {value!r}")
-    return value
 
 
 def _graft(tree, placeholders, forests):
@@ -197,7 +190,7 @@ class KdTree(Accelerator):
         }
         threads = thread_count() if threads is None else check_number("threads", threads, integer=True, minimum=1,
                                                                        inclusive=True)
-        super().__init__(scene, {**options, "packets": _check_flag("packets", packets)})
+        super().__init__(scene, {**options, "packets": check_flag("packets", packets)})
         start = time.perf_counter()
         self.kd = self._build(scene, threads, **options)
         self.build_seconds = time.perf_counter() - start

@@ -35,6 +35,7 @@ from numba.core import cgutils
 from numba.extending import intrinsic
 
 from ..._jit import chunk_kernel, inline_kernel, unsigned
+from ..._ray_lanes import LANES
 from ...geometry.box import clip_to_box
 from ...geometry.primitive import ray_setup
 from ...rays import ray_limit, result_row
@@ -46,7 +47,8 @@ from .traverse import walk_singly
 
 __all__ = ["PACKET", "PACKET_ROWS", "kdtree_packet_kernel"]
 
-PACKET = 8
+PACKET = LANES
+"""Rays per packet, one per vector lane."""
 _O = 0
 _INV = 3 * PACKET
 _T0 = 6 * PACKET
@@ -229,7 +231,7 @@ def kdtree_packet_kernel(ray_first, ray_end, tid, lo, hi, node_records, node_lin
             if axis != LEAF:
                 below = node_links[node, 2]
                 near = below if (positive >> axis) & 1 else below + 1
-                sides = _split_lanes(state, axis, np.float64(node_records[node, 0]), packet_t[tid, sp])
+                sides = _split_lanes(state, axis, node_records[node, 0], packet_t[tid, sp])
                 near_lanes = sides & lanes
                 far_lanes = (sides >> PACKET) & lanes
                 if far_lanes != 0:
