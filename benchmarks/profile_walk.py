@@ -46,7 +46,7 @@ def trace(args) -> None:
 
     set_threads(args.threads)
     scene = ra.load_scene(args.scene)
-    accel = ra.build(scene, args.method)
+    accel = ra.build(scene, args.method, **eval(f"dict({args.options})"))
     t_min, t_max = 0.0, np.inf
     if args.rays == "incoherent":
         origins, directions = incoherent_rays(scene, args.side * args.side)
@@ -127,6 +127,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--scene", default="forest-small-chair")
     parser.add_argument("--method", default="bvh-binned")
+    parser.add_argument("--options", default="")
     parser.add_argument("--rays", choices=("camera", "incoherent", "shadow"), default="incoherent")
     parser.add_argument("--query", choices=("closest", "any"), default="closest")
     parser.add_argument("--side", type=int, default=512, help="camera image side; incoherent rays: side squared")

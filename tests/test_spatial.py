@@ -18,6 +18,7 @@ from hypothesis import strategies as st
 import rayaccel as ra
 from rayaccel.geometry.overlap import prim_overlaps_box
 from rayaccel.structures.kdtree.events import END, PLANAR, START, write_node_events
+from rayaccel.structures.bvh.wide import COUNT, LINK, WIDTH
 from rayaccel.structures.kdtree.layout import LEAF
 
 SPATIAL = ["kdtree", "octree", "hgrid", "grid-bvh"]
@@ -26,7 +27,7 @@ VARIANTS = {
                {"exact_below": 64, "bins": 8}],
     "octree": [{}, {"insert": "bbox", "leaf_size": 2}],
     "hgrid": [{}, {"insert": "exact", "mailbox": False, "threshold": 2}],
-    "grid-bvh": [{}, {"threshold": 1, "mailbox": False, "density": 2.0}],
+    "grid-bvh": [{}, {"threshold": 1, "density": 2.0}, {"density": 0.5, "mailbox": True}],
 }
 CASES = [(m, options) for m in SPATIAL for options in VARIANTS[m]]
 
@@ -71,7 +72,8 @@ def test_references_read_their_primitives_in_reference_order(method, scene_name,
         corner_ids, leaf_vertices = accel.geometry
         corners = leaf_vertices[corner_ids].reshape(-1, 9)
     np.testing.assert_array_equal(corners, expected)
-    structure = accel.kd.nbytes if method == "kdtree" else accel.hybrid.nbytes + accel.mailboxes.nbytes
+    structure = (accel.kd.nbytes if method == "kdtree" else accel.hybrid.nbytes + accel.wide.nbytes
+                 + accel.wide_root.nbytes + accel.mailboxes.nbytes)
     geometry_bytes = sum(a.nbytes for a in accel.geometry) if layout == "indexed" else accel.geometry.nbytes
     assert accel.stats()["bytes"] == structure + geometry_bytes
 
@@ -258,11 +260,30 @@ def test_hgrid_invariants(small_dragon):
     assert accel.stats()["levels"] == h.grid_level.max() + 1
 
 
-def test_grid_bvh_cells_hold_their_references(small_dragon):
-    accel = ra.build(small_dragon, "grid-bvh")
+def _wide_leaf_references(links, node, cell_prims):
+    """The references in the leaves of the eight-wide tree below ``node`` (records seen as int32)."""
+    leaves, stack = [], [node]
+    while stack:
+        node = stack.pop()
+        for c in range(WIDTH):
+            count = links[node, COUNT + c]
+            if count > 0:
+                leaves.extend(cell_prims[links[node, LINK + c]:links[node, LINK + c] + count])
+            elif count == 0:
+                stack.append(links[node, LINK + c])
+    return leaves
+
+
+@pytest.mark.parametrize("density", [0.5, 0.01])
+def test_grid_bvh_cells_hold_their_references(small_dragon, density):
+    """Each dense cell's binary BVH, and the eight-wide collapse the ray walk reads, hold exactly the
+    cell's references; the cells are the uniform grid's of the same density."""
+    accel = ra.build(small_dragon, "grid-bvh", density=density)
     h = accel.hybrid
-    grid = ra.build(small_dragon, "grid", density=0.5)
+    grid = ra.build(small_dragon, "grid", density=density)
     assert (grid.grid.cell_first == h.cell_first).all()
+    assert ((h.cell_root >= 0) == (accel.wide_root >= 0)).all()
+    links = accel.wide.view(np.int32)
     for cell in np.flatnonzero(h.cell_root >= 0)[:300]:
         stack, leaves = [h.cell_root[cell]], []
         while stack:
@@ -271,8 +292,9 @@ def test_grid_bvh_cells_hold_their_references(small_dragon):
                 leaves.extend(h.cell_prims[h.node_first[node]:h.node_first[node] + h.node_count[node]])
             else:
                 stack += [h.node_first[node], h.node_first[node] + 1]
-        expected = grid.grid.cell_prims[grid.grid.cell_first[cell]:grid.grid.cell_first[cell + 1]]
-        assert sorted(leaves) == sorted(expected.tolist())
+        expected = sorted(grid.grid.cell_prims[grid.grid.cell_first[cell]:grid.grid.cell_first[cell + 1]].tolist())
+        assert sorted(leaves) == expected
+        assert sorted(_wide_leaf_references(links, accel.wide_root[cell], h.cell_prims)) == expected
 
 
 @pytest.mark.parametrize("method", SPATIAL)

@@ -34,12 +34,13 @@ from ..._validate import unusable_ray
 from ...geometry.gather import prefetch_prim
 from ...geometry.primitive import ray_setup
 from ...rays import ray_at, ray_limit, result_row
-from ..actions import COUNT, NEAREST, finish_ray_in_mode, visit_prim_in_mode
+from ..actions import COUNT, NEAREST, finish_ray_in_mode, intersect_references, visit_prim_in_mode
 from .traverse import enter_box
 from .wide import child_count, child_link
 from .wide_slab import enter_children, highest_bit
 
-__all__ = ["wide_nearest_kernel", "wide_count_kernel", "wide_crossings_kernel", "push_child", "visit_leaf"]
+__all__ = ["wide_nearest_kernel", "wide_count_kernel", "wide_crossings_kernel", "push_child", "visit_leaf",
+           "walk_tree"]
 
 
 @inline_kernel
@@ -87,6 +88,80 @@ def visit_leaf(mode, action, row, kind, geom, prim_order, first, count, ray, t_m
 
 
 @inline_kernel
+def walk_tree(mode, action, row, records, links, prim_order, kind, geom, mailbox, tid, stamp, root, origin, inv_dir,
+              near_x, near_y, near_z, ray, t_min, span_lo, span_hi, best_t, best_prim, best_u, best_v, any_hit,
+              stack_link, stack_count, stack_t, child_entry):
+    """Walk one ray (from ``t_min`` on) through the wide tree rooted at ``root``, its stack in row
+    ``tid``, entering boxes within ``[span_lo, min(best_t, span_hi)]`` and giving each primitive of
+    a leaf it reaches the action (:func:`..actions.intersect_references`, which skips those already stamped
+    ``stamp`` in ``mailbox``, an empty array for none). ``origin``, ``inv_dir`` and ``near_*`` as
+    for :func:`.wide_slab.enter_children`, ``ray`` the primitive test's set-up, ``child_entry``
+    this thread's row of children's entry distances. Returns the walk's ``(best_t, best_prim,
+    best_u, best_v)`` and its counters ``(nodes, leaves, tests, skips)``; a leaf counts as a node
+    too. The single entered inner child is descended into by its own test before the push
+    loop: folded into the loop's test of the last child, the walk ran at 0.81 (dragon camera
+    rays, closest hit) and 0.83 (forest camera rays, any hit) of this one's speed on one thread."""
+    nearest_first = not any_hit and mode == NEAREST
+    stack_row = unsigned(tid)
+    n_nodes = 0
+    n_leaves = 0
+    n_tests = 0
+    n_skips = 0
+    node = root
+    sp = 0
+    while node >= 0:
+        n_nodes += 1
+        entered = enter_children(records, node, near_x, near_y, near_z, origin, inv_dir, span_lo,
+                                 min(best_t, span_hi), child_entry)
+        if entered != 0:
+            c = highest_bit(entered)
+            entered ^= 1 << c
+            if entered == 0 and child_count(links, node, c) == 0:
+                node = child_link(links, node, c)
+                continue
+            base = sp
+            while True:
+                if entered == 0 and not nearest_first and child_count(links, node, c) == 0:
+                    node = child_link(links, node, c)
+                    break
+                count = child_count(links, node, c)
+                sp = push_child(records, geom, stack_link, stack_count, stack_t, tid, base, sp,
+                                child_entry[unsigned(c)], child_link(links, node, c), count, count, nearest_first)
+                if entered == 0:
+                    node = -1
+                    break
+                c = highest_bit(entered)
+                entered ^= 1 << c
+            if node >= 0:
+                continue
+        node = -1
+        while sp > 0:
+            sp -= 1
+            top = unsigned(sp)
+            if stack_t[stack_row, top] > best_t:
+                continue
+            count = stack_count[stack_row, top]
+            if count == 0:
+                node = stack_link[stack_row, top]
+                break
+            n_nodes += 1
+            n_leaves += 1
+            first = stack_link[stack_row, top]
+            if mailbox.shape[0] == 0:
+                best_t, best_prim, best_u, best_v, tests = visit_leaf(mode, action, row, kind, geom, prim_order, first,
+                                                                      count, ray, t_min, best_t, best_prim, best_u,
+                                                                      best_v, any_hit)
+                n_tests += tests
+            else:
+                best_t, best_prim, best_u, best_v, n_tests, n_skips = intersect_references(
+                    mode, action, row, first, first + count, prim_order, mailbox, tid, stamp, kind, geom, True, ray,
+                    t_min, best_t, best_prim, best_u, best_v, n_tests, n_skips, any_hit)
+            if any_hit and best_prim >= 0:
+                sp = 0
+    return best_t, best_prim, best_u, best_v, n_nodes, n_leaves, n_tests, n_skips
+
+
+@inline_kernel
 def _walk(ray_first, ray_end, tid, root_box, records, links, prim_order, kind, geom, origins, directions, t_min,
           t_max, hit_slot, any_hit, stack_link, stack_count, stack_t, entry, mode, action, work):
     """Trace rays ``ray_first`` to ``ray_end - 1`` through the wide BVH, keeping their stacks and the
@@ -97,14 +172,10 @@ def _walk(ray_first, ray_end, tid, root_box, records, links, prim_order, kind, g
     tested. Each primitive of a leaf gets the leaf action (:mod:`..actions`). Counters:
     wide nodes and leaves visited (a leaf counts as a node too), primitive tests. A ray that
     :func:`rayaccel._validate.unusable_ray` refuses is left unwalked, answered as a miss;
-    returns how many there were. The single
-    entered inner child is descended into by its own test before the push loop: folded into the
-    loop's test of the last child, the walk ran at 0.81 (dragon camera rays, closest hit) and
-    0.83 (forest camera rays, any hit) of this one's speed on one thread."""
+    returns how many there were."""
     count_work = work.shape[0] > 0
-    nearest_first = not any_hit and mode == NEAREST
     child_entry = entry[tid]
-    stack_row = unsigned(tid)
+    no_mailbox = np.empty((0, 0), dtype=np.int32)
     unusable = 0
     for i in range(ray_first, ray_end):
         row = result_row(hit_slot, i)
@@ -124,58 +195,14 @@ def _walk(ray_first, ray_end, tid, root_box, records, links, prim_order, kind, g
         best_prim = -1
         best_u = 0.0
         best_v = 0.0
-        n_nodes = 0
-        n_tests = 0
-        n_leaves = 0
-        node = 0
-        sp = 0
         if enter_box(root_box, 0, ox, oy, oz, ix, iy, iz, near_x, near_y, near_z, ray_t_min, best_t) == np.inf:
             finish_ray_in_mode(mode, action, row, best_t, best_prim, best_u, best_v)
             continue
         ray = ray_setup(ox, oy, oz, dx, dy, dz)
-        while node >= 0:
-            n_nodes += 1
-            entered = enter_children(records, node, near_x, near_y, near_z, origin, inv_dir, ray_t_min, best_t,
-                                     child_entry)
-            if entered != 0:
-                c = highest_bit(entered)
-                entered ^= 1 << c
-                if entered == 0 and child_count(links, node, c) == 0:
-                    node = child_link(links, node, c)
-                    continue
-                base = sp
-                while True:
-                    if entered == 0 and not nearest_first and child_count(links, node, c) == 0:
-                        node = child_link(links, node, c)
-                        break
-                    count = child_count(links, node, c)
-                    sp = push_child(records, geom, stack_link, stack_count, stack_t, tid, base, sp,
-                                    child_entry[unsigned(c)], child_link(links, node, c), count, count, nearest_first)
-                    if entered == 0:
-                        node = -1
-                        break
-                    c = highest_bit(entered)
-                    entered ^= 1 << c
-                if node >= 0:
-                    continue
-            node = -1
-            while sp > 0:
-                sp -= 1
-                top = unsigned(sp)
-                if stack_t[stack_row, top] > best_t:
-                    continue
-                count = stack_count[stack_row, top]
-                if count == 0:
-                    node = stack_link[stack_row, top]
-                    break
-                n_nodes += 1
-                n_leaves += 1
-                best_t, best_prim, best_u, best_v, tests = visit_leaf(mode, action, row, kind, geom, prim_order,
-                                                                      stack_link[stack_row, top], count, ray, ray_t_min,
-                                                                      best_t, best_prim, best_u, best_v, any_hit)
-                n_tests += tests
-                if any_hit and best_prim >= 0:
-                    sp = 0
+        best_t, best_prim, best_u, best_v, n_nodes, n_leaves, n_tests, _ = walk_tree(
+            mode, action, row, records, links, prim_order, kind, geom, no_mailbox, tid, 0, 0, origin, inv_dir, near_x,
+            near_y, near_z, ray, ray_t_min, ray_t_min, np.inf, best_t, best_prim, best_u, best_v, any_hit, stack_link,
+            stack_count, stack_t, child_entry)
         finish_ray_in_mode(mode, action, row, best_t, best_prim, best_u, best_v)
         if count_work:
             work[row, 0] = n_nodes

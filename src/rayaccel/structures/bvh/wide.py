@@ -25,7 +25,8 @@ rays 6.7 against 9.5, camera rays 2.9 against 4.1), 4.8 MB more records
   hi = -inf), so that no ray enters it and the traversal needs no test for it.
 
 Node 0 is the root; a binary tree that is a single leaf becomes a root with
-one leaf child.
+one leaf child. A forest (the grid-BVH hybrid's cells' trees) collapses the
+same way, tree ``k`` rooted at wide node ``k``.
 """
 
 from __future__ import annotations
@@ -68,43 +69,45 @@ def _box_area(node_box, node):
 
 
 @kernel
-def _collapse(node_box, node_first, node_count):
+def _collapse(node_box, node_first, node_count, roots):
     """For each wide node, the binary nodes in its child slots (-1 where unused) and,
-    for inner ones, the wide node each becomes."""
-    capacity = max(1, node_first.shape[0])
+    for inner ones, the wide node each becomes; the binary trees rooted at ``roots`` become
+    the wide trees rooted at 0, 1, ..., each tree's other nodes in one run after the roots."""
+    capacity = max(1, node_first.shape[0] + roots.shape[0])
     slots = np.full((capacity, WIDTH), -1, dtype=np.int64)
     child_wide = np.zeros((capacity, WIDTH), dtype=np.int64)
-    n_wide = 1
-    pending = [(0, 0)]
-    while len(pending) > 0:
-        wide, binary = pending.pop()
-        if node_count[binary] > 0:
-            slots[wide, 0] = binary
-            continue
-        slots[wide, 0] = node_first[binary]
-        slots[wide, 1] = node_first[binary] + 1
-        used = 2
-        while used < WIDTH:
-            widest = -1
-            widest_area = -1.0
+    n_wide = roots.shape[0]
+    for tree in range(roots.shape[0]):
+        pending = [(tree, roots[tree])]
+        while len(pending) > 0:
+            wide, binary = pending.pop()
+            if node_count[binary] > 0:
+                slots[wide, 0] = binary
+                continue
+            slots[wide, 0] = node_first[binary]
+            slots[wide, 1] = node_first[binary] + 1
+            used = 2
+            while used < WIDTH:
+                widest = -1
+                widest_area = -1.0
+                for c in range(used):
+                    if node_count[slots[wide, c]] == 0:
+                        area = _box_area(node_box, slots[wide, c])
+                        if area > widest_area:
+                            widest, widest_area = c, area
+                if widest < 0:
+                    break
+                opened = slots[wide, widest]
+                for c in range(used, widest + 1, -1):
+                    slots[wide, c] = slots[wide, c - 1]
+                slots[wide, widest] = node_first[opened]
+                slots[wide, widest + 1] = node_first[opened] + 1
+                used += 1
             for c in range(used):
                 if node_count[slots[wide, c]] == 0:
-                    area = _box_area(node_box, slots[wide, c])
-                    if area > widest_area:
-                        widest, widest_area = c, area
-            if widest < 0:
-                break
-            opened = slots[wide, widest]
-            for c in range(used, widest + 1, -1):
-                slots[wide, c] = slots[wide, c - 1]
-            slots[wide, widest] = node_first[opened]
-            slots[wide, widest + 1] = node_first[opened] + 1
-            used += 1
-        for c in range(used):
-            if node_count[slots[wide, c]] == 0:
-                pending.append((n_wide, slots[wide, c]))
-                child_wide[wide, c] = n_wide
-                n_wide += 1
+                    pending.append((n_wide, slots[wide, c]))
+                    child_wide[wide, c] = n_wide
+                    n_wide += 1
     return slots[:n_wide], child_wide[:n_wide]
 
 
@@ -144,11 +147,14 @@ def _pack(slots, child_wide, node_box, node_first, node_count, records, links):
             links[wide, COUNT + c] = 0 if inner else node_count[binary]
 
 
-def wide_tree(node_box: np.ndarray, node_first: np.ndarray,
-              node_count: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def wide_tree(node_box: np.ndarray, node_first: np.ndarray, node_count: np.ndarray,
+              roots: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """The collapse of a binary BVH: ``(slots, child_wide)``, each (n_wide, WIDTH) int32, the binary
-    node in each wide node's slot (-1 where unused) and the wide node an inner one becomes."""
-    slots, child_wide = _collapse(node_box, node_first, node_count)
+    node in each wide node's slot (-1 where unused) and the wide node an inner one becomes. A forest
+    of binary trees rooted at ``roots`` (default: one tree rooted at 0) becomes one of wide trees,
+    tree ``k`` rooted at wide node ``k``."""
+    roots = np.zeros(1, dtype=np.int64) if roots is None else np.asarray(roots, dtype=np.int64)
+    slots, child_wide = _collapse(node_box, node_first, node_count, roots)
     return slots.astype(np.int32), child_wide.astype(np.int32)
 
 

@@ -13,8 +13,10 @@ offset into ``cell_prims``; ``node_count`` is 0 for inner nodes):
   ``node_count`` (n_nodes,) int32: the forest, each tree in one run of
   slots, a node's children side by side.
 
-To walk it: 3D-DDA through the grid; in a cell with a BVH, a stack traversal
-of that BVH replaces the loop over the cell's row.
+These are what is built and saved. The ray walk reads the forest collapsed
+eight-wide (:func:`..bvh.wide.wide_tree` over all the cells' roots), derived
+after a build or a load: 3D-DDA through the grid; in a cell with a BVH, a
+stack traversal of that cell's wide tree replaces the loop over its row.
 """
 
 from __future__ import annotations

@@ -1,50 +1,64 @@
-"""Traversal of the grid-BVH hybrid: 3D-DDA between cells, a BVH stack walk inside dense ones.
+"""Traversal of the grid-BVH hybrid: 3D-DDA between cells, an eight-wide BVH walk inside dense ones.
 
 Between cells the walk is the uniform grid's (:mod:`..grid.traverse`:
 candidates kept, stop once the best lies before the current cell's exit,
-mailboxing across cells). In a cell with a BVH the cell's references are
-reached through that BVH's front-to-back stack traversal
-(:mod:`..bvh.traverse`) instead of one by one, its node tests limited to the
-ray's stretch through the cell; the mailbox still skips primitives that an
-earlier cell already tested. Stacks are per thread.
+mailboxing across cells when there are mailboxes). In a cell with a BVH the
+cell's references are reached through the eight-wide stack walk of
+``bvh-binned`` (:func:`..bvh.traverse_wide.walk_tree`) over the cell's tree,
+its child boxes entered only on the ray's stretch through the cell; the
+mailbox, if any, still skips primitives that an earlier cell already tested.
+Stacks are per thread. As the eight-wide BVH's walk, it tests each ray as it
+reads it and reads float32 rays as they are.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from ..._jit import chunk_kernel
+from ..._jit import chunk_kernel, inline_kernel
+from ..._validate import unusable_ray
 from ...geometry.box import clip_to_box
 from ...geometry.primitive import ray_setup
-from ...rays import ray_limit, result_row
-from ..actions import finish_ray, intersect_references
+from ...rays import ray_at, ray_limit, result_row
+from ..actions import NEAREST, finish_ray_in_mode, intersect_references
 from ..base import EXIT_MARGIN
-from ..bvh.traverse import enter_box
+from ..bvh.traverse_wide import walk_tree
 from ..grid.traverse import axis_start, dda_step
 
-__all__ = ["grid_bvh_trace_kernel"]
+__all__ = ["grid_bvh_nearest_kernel", "grid_bvh_crossings_kernel"]
 
 
-@chunk_kernel
-def grid_bvh_trace_kernel(ray_first, ray_end, tid, lo, hi, res, cell_size, cell_first, cell_prims, cell_root, node_box,
-                          node_first, node_count, kind, geom, origins, directions, t_min, t_max, hit_slot, any_hit,
-                          mailbox, ray_id_base, stack_node, stack_t, action, work):
+@inline_kernel
+def _walk(ray_first, ray_end, tid, lo, hi, res, cell_size, cell_first, cell_prims, cell_root, records, links, kind,
+          geom, origins, directions, t_min, t_max, hit_slot, any_hit, mailbox, ray_id_base, stack_link, stack_count,
+          stack_t, entry, mode, action, work):
     """Trace rays ``ray_first`` to ``ray_end - 1`` (one chunk of :func:`rayaccel._jit.on_threads`), their
-    stacks in row ``tid``; ``mailbox`` as in the uniform grid, stacks (threads, depth + 2)."""
+    stacks in row ``tid``; ``cell_root`` is each cell's wide root (-1 without a BVH) in ``records``
+    (:mod:`..bvh.wide`, ``links`` the same seen as int32), whose leaves index ``cell_prims``;
+    ``mailbox`` as in the uniform grid (empty for none); stacks as the eight-wide BVH's. A ray that
+    :func:`rayaccel._validate.unusable_ray` refuses is answered as a miss; returns how many
+    there were."""
     nx, ny, nz = res[0], res[1], res[2]
+    child_entry = entry[tid]
+    unusable = 0
     count_work = work.shape[0] > 0
     for i in range(ray_first, ray_end):
         row = result_row(hit_slot, i)
         ray_t_min, ray_t_max = ray_limit(t_min, i), ray_limit(t_max, i)
-        ox, oy, oz = origins[i, 0], origins[i, 1], origins[i, 2]
-        dx, dy, dz = directions[i, 0], directions[i, 1], directions[i, 2]
+        ox, oy, oz, dx, dy, dz = ray_at(origins, directions, i)
+        if unusable_ray(ox, oy, oz, dx, dy, dz):
+            unusable += 1
+            finish_ray_in_mode(mode, action, row, ray_t_max, -1, 0.0, 0.0)
+            continue
         t_enter, t_exit = clip_to_box(lo, hi, ox, oy, oz, dx, dy, dz, ray_t_min, ray_t_max)
         if t_enter > t_exit:
-            finish_ray(action, row, np.inf, -1, 0.0, 0.0)
+            finish_ray_in_mode(mode, action, row, np.inf, -1, 0.0, 0.0)
             continue
         ray = ray_setup(ox, oy, oz, dx, dy, dz)
         ix, iy, iz = 1.0 / dx, 1.0 / dy, 1.0 / dz
         near_x, near_y, near_z = 0 if ix >= 0.0 else 3, 1 if iy >= 0.0 else 4, 2 if iz >= 0.0 else 5
+        origin = (ox, oy, oz)
+        inv_dir = (ix, iy, iz)
         cx, step_x, next_x, delta_x = axis_start(ox, dx, t_enter, lo[0], cell_size[0], nx)
         cy, step_y, next_y, delta_y = axis_start(oy, dy, t_enter, lo[1], cell_size[1], ny)
         cz, step_z, next_z, delta_z = axis_start(oz, dz, t_enter, lo[2], cell_size[2], nz)
@@ -67,44 +81,17 @@ def grid_bvh_trace_kernel(ray_first, ray_end, tid, lo, hi, res, cell_size, cell_
             if root < 0:
                 n_leaves += 1
                 best_t, best_prim, best_u, best_v, n_tests, n_skips = intersect_references(
-                    action.mode, action, row, cell_first[cell], cell_first[cell + 1], cell_prims, mailbox, tid, stamp,
+                    mode, action, row, cell_first[cell], cell_first[cell + 1], cell_prims, mailbox, tid, stamp,
                     kind, geom, True, ray, ray_t_min, best_t, best_prim, best_u, best_v, n_tests, n_skips, any_hit)
             else:
-                node = root
-                sp = 0
-                if enter_box(node_box, root, ox, oy, oz, ix, iy, iz, near_x, near_y, near_z,
-                             span_lo, min(best_t, span_hi)) == np.inf:
-                    node = -1
-                while node >= 0:
-                    n_steps += 1
-                    count = node_count[node]
-                    if count > 0:
-                        n_leaves += 1
-                        first = node_first[node]
-                        best_t, best_prim, best_u, best_v, n_tests, n_skips = intersect_references(
-                            action.mode, action, row, first, first + count, cell_prims, mailbox, tid, stamp, kind,
-                            geom, True, ray, ray_t_min, best_t, best_prim, best_u, best_v, n_tests, n_skips, any_hit)
-                        if any_hit and best_prim >= 0:
-                            break
-                        node = -1
-                    else:
-                        left = node_first[node]
-                        t_left = enter_box(node_box, left, ox, oy, oz, ix, iy, iz, near_x, near_y, near_z,
-                                           span_lo, min(best_t, span_hi))
-                        t_right = enter_box(node_box, left + 1, ox, oy, oz, ix, iy, iz, near_x, near_y,
-                                            near_z, span_lo, min(best_t, span_hi))
-                        near_child, far_child, t_far = left, left + 1, t_right
-                        if t_right < t_left:
-                            near_child, far_child, t_far = left + 1, left, t_left
-                        node = near_child if min(t_left, t_right) != np.inf else -1
-                        if node >= 0 and t_far != np.inf:
-                            stack_node[tid, sp] = far_child
-                            stack_t[tid, sp] = t_far
-                            sp += 1
-                    while node < 0 and sp > 0:
-                        sp -= 1
-                        if stack_t[tid, sp] <= best_t:
-                            node = stack_node[tid, sp]
+                best_t, best_prim, best_u, best_v, nodes, leaves, n_tests_cell, n_skips_cell = walk_tree(
+                    mode, action, row, records, links, cell_prims, kind, geom, mailbox, tid, stamp, root, origin,
+                    inv_dir, near_x, near_y, near_z, ray, ray_t_min, span_lo, span_hi, best_t, best_prim, best_u,
+                    best_v, any_hit, stack_link, stack_count, stack_t, child_entry)
+                n_steps += nodes
+                n_leaves += leaves
+                n_tests += n_tests_cell
+                n_skips += n_skips_cell
             if best_prim >= 0 and (any_hit or best_t <= cell_exit):
                 break
             if cell_exit > t_exit:
@@ -114,9 +101,31 @@ def grid_bvh_trace_kernel(ray_first, ray_end, tid, lo, hi, res, cell_size, cell_
             if not inside:
                 break
             t_cell = cell_exit
-        finish_ray(action, row, best_t, best_prim, best_u, best_v)
+        finish_ray_in_mode(mode, action, row, best_t, best_prim, best_u, best_v)
         if count_work:
             work[row, 0] = n_steps
             work[row, 1] = n_tests
             work[row, 2] = n_skips
             work[row, 3] = n_leaves
+    return unusable
+
+
+@chunk_kernel
+def grid_bvh_nearest_kernel(ray_first, ray_end, tid, lo, hi, res, cell_size, cell_first, cell_prims, cell_root, records,
+                            links, kind, geom, origins, directions, t_min, t_max, hit_slot, any_hit, mailbox,
+                            ray_id_base, stack_link, stack_count, stack_t, entry, action, work):
+    """The closest-hit and any-hit walk (an action of mode ``NEAREST``), the other modes' code
+    pruned before it is compiled (:func:`..actions.visit_prim_in_mode`)."""
+    return _walk(ray_first, ray_end, tid, lo, hi, res, cell_size, cell_first, cell_prims, cell_root, records, links,
+                 kind, geom, origins, directions, t_min, t_max, hit_slot, any_hit, mailbox, ray_id_base, stack_link,
+                 stack_count, stack_t, entry, NEAREST, action, work)
+
+
+@chunk_kernel
+def grid_bvh_crossings_kernel(ray_first, ray_end, tid, lo, hi, res, cell_size, cell_first, cell_prims, cell_root,
+                              records, links, kind, geom, origins, directions, t_min, t_max, hit_slot, any_hit,
+                              mailbox, ray_id_base, stack_link, stack_count, stack_t, entry, action, work):
+    """The walk for the other actions (counting, listing, winding), compiled at their first use."""
+    return _walk(ray_first, ray_end, tid, lo, hi, res, cell_size, cell_first, cell_prims, cell_root, records, links,
+                 kind, geom, origins, directions, t_min, t_max, hit_slot, any_hit, mailbox, ray_id_base, stack_link,
+                 stack_count, stack_t, entry, action.mode, action, work)
