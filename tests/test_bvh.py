@@ -22,6 +22,7 @@ from hypothesis import strategies as st
 import rayaccel as ra
 from rayaccel.geometry.kdop import KDOP_NORMALS
 from rayaccel.structures.bvh.nodes import node_depths
+from rayaccel.structures.bvh.reinsertion import _largest
 from rayaccel.structures.bvh.wide import WIDTH, wide_records
 
 BUILDERS = [m for m in ra.methods() if m.startswith("bvh-")]
@@ -130,6 +131,20 @@ def test_reinsertion_moves_subtrees_without_raising_the_sah_cost(small_dragon, m
     assert moved.stats()["sah_cost"] <= built.stats()["sah_cost"]
     assert _leaf_sets(moved) == _leaf_sets(built)
     assert ra.build(small_dragon, method).options["reinsertion"] == (method == "bvh-binned")
+
+
+@settings(max_examples=60, deadline=None)
+@given(n=st.integers(1, 5000), batch=st.integers(1, 300), levels=st.integers(1, 50), seed=st.integers(0, 2**31))
+def test_reinsertion_picks_the_largest_measures(n, batch, levels, seed):
+    """The nodes reinsertion moves are the ``batch`` largest non-negative measures, largest first,
+    equal ones by index, whether the sampled threshold finds them or all are partitioned: measures
+    drawn from few levels (many ties), with negative ones (nodes that cannot move) and infinite ones."""
+    rng = np.random.default_rng(seed)
+    measure = rng.integers(-2, levels, n).astype(float)
+    measure[rng.random(n) < 0.01] = np.inf
+    order = np.lexsort((np.arange(n), -measure))
+    expected = order[measure[order] >= 0.0][:batch]
+    np.testing.assert_array_equal(_largest(measure, batch), expected)
 
 
 def test_reinsertion_repairs_the_binned_sah_around_a_dense_speck():

@@ -17,8 +17,8 @@ from hypothesis import strategies as st
 
 import rayaccel as ra
 from rayaccel.geometry.overlap import prim_overlaps_box
-from rayaccel.structures.kdtree.events import END, PLANAR, START, write_node_events
 from rayaccel.structures.bvh.wide import COUNT, LINK, WIDTH
+from rayaccel.structures.kdtree.events import END, PLANAR, START, write_node_events
 from rayaccel.structures.kdtree.layout import LEAF
 
 SPATIAL = ["kdtree", "octree", "hgrid", "grid-bvh"]
