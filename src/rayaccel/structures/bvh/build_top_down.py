@@ -266,4 +266,12 @@ def build_top_down(lo, hi, centroid, order, sorted_codes, strategy, max_leaf_siz
         slots = end + np.cumsum(sizes) - sizes
         ends = build_blocks(build, common, tasks, slots, threads)
         end = close_gaps(node_box, node_first, node_count, end, tasks[:, 0], slots, ends)
-    return node_box[:end].copy(), node_first[:end].copy(), node_count[:end].copy()
+    return _shrunk(node_box, end), _shrunk(node_first, end), _shrunk(node_count, end)
+
+
+def _shrunk(array, rows):
+    """``array`` cut to its first ``rows`` rows in place: its memory reallocated, which gives
+    the unused rows back without copying the used ones (full dragon: a copy of the three arrays
+    took 28 ms of each build). No view of ``array`` may exist, since its memory may move."""
+    array.resize((rows,) + array.shape[1:], refcheck=False)
+    return array

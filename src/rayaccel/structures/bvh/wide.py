@@ -72,15 +72,28 @@ def _box_area(node_box, node):
 def _collapse(node_box, node_first, node_count, roots):
     """For each wide node, the binary nodes in its child slots (-1 where unused) and,
     for inner ones, the wide node each becomes; the binary trees rooted at ``roots`` become
-    the wide trees rooted at 0, 1, ..., each tree's other nodes in one run after the roots."""
-    capacity = max(1, node_first.shape[0] + roots.shape[0])
-    slots = np.full((capacity, WIDTH), -1, dtype=np.int64)
-    child_wide = np.zeros((capacity, WIDTH), dtype=np.int64)
+    the wide trees rooted at 0, 1, ..., each tree's other nodes in one run after the roots.
+    A wide node stands for an inner binary node or a root, which bounds their number, and
+    only the rows used are written: full dragon, 7 ms, where filling int64 rows for every
+    binary node and converting them to int32 took 50 ms."""
+    capacity = 1 + roots.shape[0]
+    for binary in range(node_count.shape[0]):
+        if node_count[binary] == 0:
+            capacity += 1
+    slots = np.empty((capacity, WIDTH), dtype=np.int32)
+    child_wide = np.zeros((capacity, WIDTH), dtype=np.int32)
+    pending_wide = np.empty(capacity, dtype=np.int64)
+    pending_binary = np.empty(capacity, dtype=np.int64)
     n_wide = roots.shape[0]
     for tree in range(roots.shape[0]):
-        pending = [(tree, roots[tree])]
-        while len(pending) > 0:
-            wide, binary = pending.pop()
+        pending_wide[0] = tree
+        pending_binary[0] = roots[tree]
+        n_pending = 1
+        while n_pending > 0:
+            n_pending -= 1
+            wide = pending_wide[n_pending]
+            binary = pending_binary[n_pending]
+            slots[wide] = -1
             if node_count[binary] > 0:
                 slots[wide, 0] = binary
                 continue
@@ -105,7 +118,9 @@ def _collapse(node_box, node_first, node_count, roots):
                 used += 1
             for c in range(used):
                 if node_count[slots[wide, c]] == 0:
-                    pending.append((n_wide, slots[wide, c]))
+                    pending_wide[n_pending] = n_wide
+                    pending_binary[n_pending] = slots[wide, c]
+                    n_pending += 1
                     child_wide[wide, c] = n_wide
                     n_wide += 1
     return slots[:n_wide], child_wide[:n_wide]
@@ -154,8 +169,7 @@ def wide_tree(node_box: np.ndarray, node_first: np.ndarray, node_count: np.ndarr
     of binary trees rooted at ``roots`` (default: one tree rooted at 0) becomes one of wide trees,
     tree ``k`` rooted at wide node ``k``."""
     roots = np.zeros(1, dtype=np.int64) if roots is None else np.asarray(roots, dtype=np.int64)
-    slots, child_wide = _collapse(node_box, node_first, node_count, roots)
-    return slots.astype(np.int32), child_wide.astype(np.int32)
+    return _collapse(node_box, node_first, node_count, roots)
 
 
 def wide_records(node_box: np.ndarray, node_first: np.ndarray, node_count: np.ndarray, tree=None) -> np.ndarray:
