@@ -9,6 +9,7 @@ them with ``objdump`` and lays the samples on the instructions: the hottest
 instructions with the code around them, and the share of each 64-byte block.
 
     python benchmarks/profile_walk.py --scene forest-small-chair --rays incoherent --query closest
+    python benchmarks/profile_walk.py --scene dragon --method grid-bvh --option density=0.01 --option mailbox=True
 
 Needs ``perf`` and ``objdump`` (Debian: ``apt-get install -y linux-perf binutils``).
 Results go to ``--out`` (default ``benchmarks/results/profile``): ``perf.data``,
@@ -20,6 +21,7 @@ one that stalled (the sampling's skid): read the hot spots with their context.
 from __future__ import annotations
 
 import argparse
+import ast
 import collections
 import ctypes
 import re
@@ -36,6 +38,18 @@ HOT_INSTRUCTIONS = 12
 BLOCK_BYTES = 64
 
 
+def _build_option(text: str) -> tuple[str, object]:
+    """``(name, value)`` of a ``--option NAME=VALUE``: the value read as a Python literal, or kept
+    as the text when it is none (``insert=exact``)."""
+    name, separator, value = text.partition("=")
+    if not separator or not name:
+        raise argparse.ArgumentTypeError(f"takes NAME=VALUE, got {text!r}")
+    try:
+        return name, ast.literal_eval(value)
+    except (ValueError, SyntaxError):
+        return name, value
+
+
 def trace(args) -> None:
     """The profiled child: run the query for ``args.seconds``, then copy the executable regions."""
     import numpy as np
@@ -46,7 +60,7 @@ def trace(args) -> None:
 
     set_threads(args.threads)
     scene = ra.load_scene(args.scene)
-    accel = ra.build(scene, args.method, **eval(f"dict({args.options})"))
+    accel = ra.build(scene, args.method, **dict(args.option))
     t_min, t_max = 0.0, np.inf
     if args.rays == "incoherent":
         origins, directions = incoherent_rays(scene, args.side * args.side)
@@ -127,7 +141,8 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--scene", default="forest-small-chair")
     parser.add_argument("--method", default="bvh-binned")
-    parser.add_argument("--options", default="")
+    parser.add_argument("--option", action="append", default=[], type=_build_option, metavar="NAME=VALUE",
+                        help="a build option of the method, its value a Python literal (repeatable)")
     parser.add_argument("--rays", choices=("camera", "incoherent", "shadow"), default="incoherent")
     parser.add_argument("--query", choices=("closest", "any"), default="closest")
     parser.add_argument("--side", type=int, default=512, help="camera image side; incoherent rays: side squared")

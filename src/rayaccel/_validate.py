@@ -13,8 +13,7 @@ from ._jit import inline_kernel, kernel, on_threads
 from ._ray_lanes import LANES, rays_by_axis, rays_readable
 
 __all__ = ["as_points", "as_index_triples", "as_per_ray", "as_positive_int", "check_flag", "check_number",
-           "first_zero_row",
-           "check_ray_arrays", "unusable_ray", "unusable_rays"]
+           "first_zero_row", "check_ray_arrays", "unusable_ray", "unusable_rays"]
 
 
 @kernel

@@ -71,7 +71,7 @@ def _links(first, count):
 
 
 @kernel
-def _node_measures(box, left, right, parent, root):
+def _node_measures(box, left, right, root):
     """``(measure, inner_area)``: each node's measure of how badly it is placed, its area times
     its area over its smaller child's and over its children's sum (a leaf: its area; the root
     and its children, which cannot move: -1; one that overflows, on huge boxes: infinite),
@@ -89,16 +89,16 @@ def _node_measures(box, left, right, parent, root):
         child_b = area[right[node]]
         measure[node] = area[node] ** 3 / max(min(child_a, child_b) * (child_a + child_b), 1e-300)
     measure[root] = -1.0
-    for node in range(n):
-        if parent[node] == root:
-            measure[node] = -1.0
+    if left[root] >= 0:
+        measure[left[root]] = -1.0
+        measure[right[root]] = -1.0
     return measure, inner_area
 
 
-def _worst_nodes(box, left, right, parent, root, batch):
+def _worst_nodes(box, left, right, root, batch):
     """The ``batch`` nodes that look worst placed (:func:`_node_measures`), worst first, and the
     inner nodes' total area."""
-    measure, inner_area = _node_measures(box, left, right, parent, root)
+    measure, inner_area = _node_measures(box, left, right, root)
     return _largest(measure, batch), inner_area
 
 
@@ -309,7 +309,7 @@ def reinsert_subtrees(box, first, count, order, rounds: int = 64):
     batch = max(1, int(n * _MOVED_FRACTION))
     total_saved = 0.0
     for round_number in range(rounds):
-        nodes, inner_area = _worst_nodes(moved_box, left, right, parent, root, batch)
+        nodes, inner_area = _worst_nodes(moved_box, left, right, root, batch)
         if round_number == 0:
             area_as_built = inner_area
         root, saved = _move_nodes(moved_box, left, right, parent, root, nodes, heap_costs, heap_nodes)
