@@ -19,6 +19,7 @@ import rayaccel as ra
 from rayaccel.ray_order import MIN_PACKET_RAYS, lane_packets_pay, packets_pay
 from rayaccel.rays import prepare_rays
 from rayaccel.structures.kdtree import accelerator
+from rayaccel.structures.kdtree.layout import PLANE_STEP, plane_bracket
 from rayaccel.structures.kdtree.traverse import _cross_split
 from rayaccel.structures.kdtree.traverse_packet import PACKET, PACKET_ROWS, _split_lanes
 
@@ -126,22 +127,24 @@ def test_packets_option(small_dragon):
 
 
 @numba.njit(cache=False)
-def _split_by_lane_and_alone(state, axis, node_records, links, slot, alone):
+def _split_by_lane_and_alone(state, axis, node_records, slot, alone):
     """The vector split of all lanes, and the single walk's split of each lane alone at the plane
     of ``node_records[0]``."""
-    split = node_records[0, 0]
+    planes = node_records.view(np.float32)
     for r in range(PACKET):
         o, inv = state[axis * PACKET + r], state[(3 + axis) * PACKET + r]
         t0, t1 = state[6 * PACKET + r], state[7 * PACKET + r]
-        nxt, near_t1, pushed, push_t0, push_t1 = _cross_split(node_records, links, 0, o, 1.0 / inv, inv, t0, t1)
+        nxt, near_t1, pushed, push_t0, push_t1 = _cross_split(planes, node_records[0, 1], 0, o, inv,
+                                                              PLANE_STEP * abs(inv), t0, t1)
         alone[r, 0], alone[r, 1], alone[r, 2], alone[r, 3], alone[r, 4] = nxt, near_t1, pushed, push_t0, push_t1
-    return _split_lanes(state, axis, split, slot)
+    return _split_lanes(state, axis, np.float64(planes[0, 0]), slot)
 
 
 def test_vector_split_is_the_single_walks_split_in_each_lane():
     """:func:`_split_lanes` makes, lane by lane, the single walk's choice
     (:func:`.traverse._cross_split`) to the bit: which sides each lane reaches and its
-    intervals there, for planes before, inside, after and at the ends of the lanes' intervals."""
+    intervals there, for planes before, inside, after and at the ends of the lanes' intervals (the
+    ray leaving or entering the plane's bracket right there)."""
     rng = np.random.default_rng(11)
     checked = 0
     for trial in range(400):
@@ -150,20 +153,26 @@ def test_vector_split_is_the_single_walks_split_in_each_lane():
         state = np.zeros(PACKET_ROWS * PACKET)
         origin = rng.uniform(-1.0, 1.0, PACKET)
         direction = rng.uniform(0.1, 1.0, PACKET) * (1.0 if positive else -1.0)
+        inv = 1.0 / direction
         state[axis * PACKET:(axis + 1) * PACKET] = origin
-        state[(3 + axis) * PACKET:(4 + axis) * PACKET] = 1.0 / direction
+        state[(3 + axis) * PACKET:(4 + axis) * PACKET] = inv
         t0 = rng.uniform(0.0, 1.0, PACKET)
         t1 = t0 + rng.choice([0.0, 0.5, 2.0], PACKET)
-        state[6 * PACKET:7 * PACKET], state[7 * PACKET:8 * PACKET] = t0, t1
         lane = int(rng.integers(0, PACKET))
-        split = rng.choice([rng.uniform(-3.0, 3.0), origin[lane] + t0[lane] * direction[lane],
-                            origin[lane] + t1[lane] * direction[lane]])
+        split = np.float32(rng.uniform(-3.0, 3.0))
+        at_plane = (rng.choice(plane_bracket(split)) - origin[lane]) * inv[lane]
+        end = rng.integers(0, 3)
+        if end == 1:
+            t0[lane], t1[lane] = at_plane, max(t1[lane], at_plane)
+        elif end == 2:
+            t0[lane], t1[lane] = min(t0[lane], at_plane), at_plane
+        state[6 * PACKET:7 * PACKET], state[7 * PACKET:8 * PACKET] = t0, t1
         slot = np.zeros(2 * PACKET)
         alone = np.zeros((PACKET, 5))
-        node_records = np.array([[split, 0.0]])
-        node_records.view(np.int32)[0, 2] = 1
+        node_records = np.array([[0, 1 << 2 | axis]], dtype=np.int32)
+        node_records.view(np.float32)[0, 0] = split
         after = state.copy()
-        sides = _split_by_lane_and_alone(after, axis, node_records, node_records.view(np.int32), slot, alone)
+        sides = _split_by_lane_and_alone(after, axis, node_records, slot, alone)
         near, far = (1, 2) if positive else (2, 1)
         for r in range(PACKET):
             goes_near = bool(sides >> r & 1)

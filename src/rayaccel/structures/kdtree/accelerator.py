@@ -19,7 +19,7 @@ from ..base import Accelerator, walk_rays
 from ..grid.build_uniform import grid_box
 from .build_sah_binned import build_binned_top
 from .build_sah_events import build_subtrees
-from .layout import LEAF, KdTreeArrays, node_cells
+from .layout import LEAF, MAX_NODES, KdTreeArrays, node_cells
 from .nearest import kdtree_nearest_kernel
 from .traverse import kdtree_closest_kernel, kdtree_crossings_kernel
 from .traverse_packet import PACKET, PACKET_ROWS, kdtree_packet_kernel
@@ -107,7 +107,7 @@ def _tree_depth(kd: KdTreeArrays) -> int:
     """The depth of the deepest node, found level by level (children sit side by side), without
     the cells :func:`.layout.node_cells` would compute beside the depths."""
     inner = kd.axis != LEAF
-    links = kd.node_link[:, 0]
+    links = kd.node_records[:, 1] >> 2
     level = np.zeros(1, dtype=np.int64)
     depth = 0
     while True:
@@ -203,7 +203,8 @@ class KdTree(Accelerator):
         walks' stacks. Float32 rows, 36 bytes a reference, held 63 bytes a triangle of the full
         dragon (1.75 references each) and put the kd-tree at 100.5 bytes a triangle, over
         Embree's 91.9; indexed, 70.6, and 0.92-1.01 times as fast (medians of 7 interleaved
-        rounds, camera, incoherent and shadow rays, closest and any hit, two threads)."""
+        rounds, camera, incoherent and shadow rays, closest and any hit, two threads; 16-byte
+        nodes then, 55.3 bytes a triangle indexed with the 8-byte nodes of :mod:`.layout`)."""
         self.geometry = self.scene.gather(self.kd.leaf_prims, indexed=True)
         self.max_depth = _tree_depth(self.kd)
 
@@ -230,8 +231,9 @@ class KdTree(Accelerator):
         tree, _ = _graft(tree, [node for _, placeholders, _ in batches for node in placeholders],
                          [forest for forest, _, _ in batches])
         node_split, node_link, leaf_prims = tree
-        if len(node_split) >= np.iinfo(np.int32).max or len(leaf_prims) >= np.iinfo(np.int32).max:
-            raise ValueError("the kd-tree outgrew int32 indices; raise leaf_size or lower max_depth")
+        if len(node_split) >= MAX_NODES or len(leaf_prims) >= np.iinfo(np.int32).max:
+            raise ValueError(f"the kd-tree outgrew its indices ({MAX_NODES:,} nodes, int32 references); raise "
+                             "leaf_size or lower max_depth")
         return KdTreeArrays.pack(lo, hi, node_split, node_link, leaf_prims)
 
     @staticmethod
@@ -255,7 +257,7 @@ class KdTree(Accelerator):
     def node_cells(self) -> np.ndarray:
         """(n_nodes, 6) cell of every node, lo and hi, derived from the planes at each call: kept
         beside the tree, with each node's depth, they held 93.5 bytes a triangle of the full
-        dragon, more than the 70.6 of the tree and its primitives that the queries read."""
+        dragon, more than the 55.3 of the tree and its primitives that the queries read."""
         return node_cells(self.kd.lo, self.kd.hi, self.kd.node_records)[0]
 
     def _trace(self, batch, any_hit, action, work):
@@ -263,19 +265,18 @@ class KdTree(Accelerator):
         rows = numba.config.NUMBA_NUM_THREADS
         stack_node = thread_rows((rows, self.max_depth + 2), np.int32)
         stack_t = thread_rows((rows, self.max_depth + 2, 2))
-        tree = (k.lo, k.hi, k.node_records, k.node_records.view(np.int32), k.leaf_prims, self.scene.kind,
-                self.geometry)
+        tree = (k.lo, k.hi, k.node_planes, k.node_records, k.leaf_prims, self.scene.kind, self.geometry)
         with self._mailboxes_for(action).lend(len(batch.origins)) as (mailbox, base):
             if action.mode == NEAREST and work.shape[0] == 0 and self._packets_pay(batch):
                 walk_rays(kdtree_packet_kernel, len(batch.origins), *tree, *batch, any_hit, mailbox, base, stack_node,
-                          stack_t, thread_rows((rows, 3)), thread_rows((rows, self.max_depth + 2), np.int64),
+                          stack_t, thread_rows((rows, 6)), thread_rows((rows, self.max_depth + 2), np.int64),
                           thread_rows((rows, self.max_depth + 2, 2 * PACKET)),
                           thread_rows((rows, PACKET_ROWS * PACKET)), thread_rows((rows, PACKET), np.int64), action,
                           work)
                 return
             walk = kdtree_closest_kernel if action.mode == NEAREST else kdtree_crossings_kernel
             walk_rays(walk, len(batch.origins), *tree, *batch, any_hit, mailbox, base, stack_node, stack_t,
-                      thread_rows((rows, 3)), action, work)
+                      thread_rows((rows, 6)), action, work)
 
     def _packets_pay(self, batch) -> bool:
         """Whether to trace ``batch`` in packets (the ``packets`` option, on a coherent batch)."""
@@ -289,8 +290,8 @@ class KdTree(Accelerator):
         k = self.kd
         rows, depth = numba.config.NUMBA_NUM_THREADS, self.max_depth + 2
         pad = 1e-9 * float(np.abs(k.lo).max() + np.abs(k.hi).max() + (k.hi - k.lo).max())
-        kdtree_nearest_kernel(k.lo, k.hi, k.node_records, k.node_records.view(np.int32), k.leaf_prims,
-                              self.scene.kind, self.geometry, pad, points, limit_d2,
+        kdtree_nearest_kernel(k.lo, k.hi, k.node_planes, k.node_records, k.leaf_prims, self.scene.kind,
+                              self.geometry, pad, points, limit_d2,
                               thread_rows((rows, depth), np.int32), thread_rows((rows, depth)),
                               thread_rows((rows, depth, 6)), out_d2, out_prim)
 

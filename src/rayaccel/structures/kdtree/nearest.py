@@ -18,6 +18,7 @@ from numba import prange
 
 from ..._jit import inline_kernel, parallel_kernel, thread_id
 from ..point_actions import box_distance2, nearest_in_refs
+from .layout import plane_bracket
 
 __all__ = ["kdtree_nearest_kernel"]
 
@@ -35,11 +36,11 @@ def _cell_distance2(cell, p):
 
 
 @parallel_kernel
-def kdtree_nearest_kernel(lo, hi, node_records, node_links, leaf_prims, kind, geom, pad, points, limit_d2,
+def kdtree_nearest_kernel(lo, hi, node_planes, node_links, leaf_prims, kind, geom, pad, points, limit_d2,
                           stack_node, stack_d2, stack_cell, out_d2, out_prim):
     """For each point, the closest primitive within ``sqrt(limit_d2[i])`` (``out_d2``, ``out_prim``);
-    ``node_links`` is ``node_records`` seen as int32, ``geom`` in reference order; stacks as
-    deep as the tree + 2, ``stack_cell`` (threads, depth, 6)."""
+    ``node_links`` the node records (:mod:`.layout`), ``node_planes`` the same seen as float32,
+    ``geom`` in reference order; stacks as deep as the tree + 2, ``stack_cell`` (threads, depth, 6)."""
     for i in prange(points.shape[0]):
         tid = thread_id()
         p = (points[i, 0], points[i, 1], points[i, 2])
@@ -51,24 +52,24 @@ def kdtree_nearest_kernel(lo, hi, node_records, node_links, leaf_prims, kind, ge
             node = -1
         sp = 0
         while node >= 0:
-            link = node_links[node, 3]
+            link = node_links[node, 1]
             axis = link & 3
             if axis == 3:
-                first = node_links[node, 2]
+                first = node_links[node, 0]
                 best_d2, best_prim = nearest_in_refs(kind, geom, leaf_prims, first, first + (link >> 2), True, p[0],
                                                      p[1], p[2], best_d2, best_prim)
                 node = -1
             else:
-                split = node_records[node, 0]
-                below = node_links[node, 2]
-                if p[axis] < split:
+                plane_below, plane_above = plane_bracket(node_planes[node, 0])
+                below = link >> 2
+                if p[axis] < plane_below:
                     node, far = below, below + 1
-                    far_cell = _with(cell, axis, split - pad)
-                    cell = _with(cell, axis + 3, split + pad)
+                    far_cell = _with(cell, axis, plane_below - pad)
+                    cell = _with(cell, axis + 3, plane_above + pad)
                 else:
                     node, far = below + 1, below
-                    far_cell = _with(cell, axis + 3, split + pad)
-                    cell = _with(cell, axis, split - pad)
+                    far_cell = _with(cell, axis + 3, plane_above + pad)
+                    cell = _with(cell, axis, plane_below - pad)
                 d_far = _cell_distance2(far_cell, p)
                 if d_far <= best_d2:
                     stack_node[tid, sp] = far

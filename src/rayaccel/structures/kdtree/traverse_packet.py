@@ -42,7 +42,7 @@ from ...rays import ray_limit, result_row
 from ..actions import NEAREST, finish_ray_in_mode, intersect_references
 from ..base import EXIT_MARGIN, settled_before
 from ..bvh.wide_slab import highest_bit, splat
-from .layout import LEAF
+from .layout import LEAF, PLANE_FLOOR, PLANE_STEP
 from .traverse import walk_singly
 
 __all__ = ["PACKET", "PACKET_ROWS", "kdtree_packet_kernel"]
@@ -103,16 +103,17 @@ def _load_packet(lo, hi, origins, directions, t_min, t_max, packet_first, n_lane
 
 
 @intrinsic
-def _split_lanes(typingctx, state, axis, split, slot_t):
-    """Cut the eight lanes' intervals at the plane ``split`` on ``axis``, in vector lanes: the far
+def _split_lanes(typingctx, state, axis, plane, slot_t):
+    """Cut the eight lanes' intervals at a node's ``plane`` on ``axis`` (the bottom of the plane's
+    bracket, :func:`.layout.plane_bracket`), in vector lanes: the far
     intervals go to ``slot_t`` (a stack slot: the eight ``t0``, then the eight ``t1``), and
     each lane keeps the near part as its current interval in ``state``. Returns the lanes that
     reach the near side in bits 0-7 and those that reach the far side in bits 8-15: the
     single walk's choice (:func:`.traverse._cross_split`) with its arithmetic, lane by lane."""
-    signature = types.int64(state, axis, split, slot_t)
+    signature = types.int64(state, axis, plane, slot_t)
 
     def codegen(context, builder, sig, args):
-        state_value, axis_value, split_value, slot_value = args
+        state_value, axis_value, plane_value, slot_value = args
         doubles = ir.VectorType(ir.DoubleType(), PACKET)
         intp = context.get_value_type(types.intp)
         state_data = context.make_array(sig.args[0])(context, builder, state_value).data
@@ -132,16 +133,27 @@ def _split_lanes(typingctx, state, axis, split, slot_t):
         t1 = builder.load(lanes_at(state_data, row_at(_T1)), align=8)
         margin = splat(builder, ir.Constant(ir.DoubleType(), EXIT_MARGIN), doubles)
         fabs = cgutils.get_or_insert_function(builder.module, ir.FunctionType(doubles, [doubles]), "llvm.fabs.v8f64")
-        t_plane = builder.fmul(builder.fsub(splat(builder, split_value, doubles), origin), inverse)
+        double = ir.DoubleType()
+        plane = splat(builder, plane_value, doubles)
+        t_plane = builder.fmul(builder.fsub(plane, origin), inverse)
+        step = builder.fmul(splat(builder, ir.Constant(double, PLANE_STEP), doubles), builder.call(fabs, [inverse]))
+        width = builder.fmul(builder.fadd(builder.call(fabs, [plane]), splat(builder, ir.Constant(double, PLANE_FLOOR),
+                                                                              doubles)), step)
+        positive = builder.fcmp_ordered(">", inverse, splat(builder, ir.Constant(double, 0.0), doubles))
+        t_exit = builder.select(positive, builder.fadd(t_plane, width), t_plane)
+        t_entry = builder.select(positive, t_plane, builder.fsub(t_plane, width))
         low = builder.fsub(t0, builder.fmul(margin, builder.call(fabs, [t0])))
         high = builder.fadd(t1, builder.fmul(margin, builder.call(fabs, [t1])))
-        goes_near = builder.fcmp_unordered(">=", t_plane, low)
-        goes_far = builder.fcmp_unordered("<=", t_plane, high)
-        above_t0 = builder.select(builder.fcmp_ordered(">", t_plane, t0), t_plane, t0)
-        cut = builder.select(builder.fcmp_ordered("<", above_t0, t1), above_t0, t1)
-        builder.store(builder.select(goes_near, cut, t0), lanes_at(slot_data, row_at(0)), align=8)
+        goes_near = builder.fcmp_unordered(">=", t_exit, low)
+        goes_far = builder.fcmp_unordered("<=", t_entry, high)
+
+        def clamped(t):
+            above_t0 = builder.select(builder.fcmp_ordered(">", t, t0), t, t0)
+            return builder.select(builder.fcmp_ordered("<", above_t0, t1), above_t0, t1)
+
+        builder.store(builder.select(goes_near, clamped(t_entry), t0), lanes_at(slot_data, row_at(0)), align=8)
         builder.store(t1, lanes_at(slot_data, row_at(PACKET)), align=8)
-        builder.store(builder.select(goes_far, cut, t1), lanes_at(state_data, row_at(_T1)), align=8)
+        builder.store(builder.select(goes_far, clamped(t_exit), t1), lanes_at(state_data, row_at(_T1)), align=8)
         int64 = ir.IntType(64)
         near_bits = builder.zext(builder.bitcast(goes_near, ir.IntType(PACKET)), int64)
         far_bits = builder.zext(builder.bitcast(goes_far, ir.IntType(PACKET)), int64)
@@ -201,7 +213,7 @@ def _visit_leaf_lanes(action, hit_slot, first, end, leaf_prims, mailbox, tid, ra
 
 
 @chunk_kernel
-def kdtree_packet_kernel(ray_first, ray_end, tid, lo, hi, node_records, node_links, leaf_prims, kind, geom, origins,
+def kdtree_packet_kernel(ray_first, ray_end, tid, lo, hi, node_planes, node_links, leaf_prims, kind, geom, origins,
                          directions, t_min, t_max, hit_slot, any_hit, mailbox, ray_id_base, stack_node, stack_t,
                          inv_dir, packet_lanes, packet_t, lanes_state, lanes_prim, action, work):
     """The closest-hit and any-hit walk (an action of mode ``NEAREST``) of rays ``ray_first`` to
@@ -217,7 +229,7 @@ def kdtree_packet_kernel(ray_first, ray_end, tid, lo, hi, node_records, node_lin
         lanes, positive, coherent = _load_packet(lo, hi, origins, directions, t_min, t_max, packet_first, n_lanes,
                                                  state, best_prim)
         if not coherent:
-            walk_singly(packet_first, packet_first + n_lanes, tid, lo, hi, node_records, node_links, leaf_prims, kind,
+            walk_singly(packet_first, packet_first + n_lanes, tid, lo, hi, node_planes, node_links, leaf_prims, kind,
                         geom, origins, directions, t_min, t_max, hit_slot, any_hit, mailbox, ray_id_base, stack_node,
                         stack_t, inv_dir, NEAREST, action, work)
             continue
@@ -226,12 +238,12 @@ def kdtree_packet_kernel(ray_first, ray_end, tid, lo, hi, node_records, node_lin
         node = 0 if lanes != 0 else -1
         sp = 0
         while node >= 0:
-            word = node_links[node, 3]
+            word = node_links[node, 1]
             axis = word & 3
             if axis != LEAF:
-                below = node_links[node, 2]
+                below = word >> 2
                 near = below if (positive >> axis) & 1 else below + 1
-                sides = _split_lanes(state, axis, node_records[node, 0], packet_t[tid, sp])
+                sides = _split_lanes(state, axis, np.float64(node_planes[node, 0]), packet_t[tid, sp])
                 near_lanes = sides & lanes
                 far_lanes = (sides >> PACKET) & lanes
                 if far_lanes != 0:
@@ -243,7 +255,7 @@ def kdtree_packet_kernel(ray_first, ray_end, tid, lo, hi, node_records, node_lin
                     lanes = near_lanes
                     continue
             elif word >> 2 != 0:
-                first = node_links[node, 2]
+                first = node_links[node, 0]
                 done = _visit_leaf_lanes(action, hit_slot, first, first + (word >> 2), leaf_prims, mailbox, tid,
                                          ray_id_base, kind, geom, origins, directions, packet_first, lanes & ~done,
                                          done, state, best_prim, any_hit)
