@@ -105,11 +105,11 @@ def _load_packet(lo, hi, origins, directions, t_min, t_max, packet_first, n_lane
 @intrinsic
 def _split_lanes(typingctx, state, axis, plane, slot_t):
     """Cut the eight lanes' intervals at a node's ``plane`` on ``axis`` (the bottom of the plane's
-    bracket, :func:`.layout.plane_bracket`), in vector lanes: the far
-    intervals go to ``slot_t`` (a stack slot: the eight ``t0``, then the eight ``t1``), and
-    each lane keeps the near part as its current interval in ``state``. Returns the lanes that
-    reach the near side in bits 0-7 and those that reach the far side in bits 8-15: the
-    single walk's choice (:func:`.traverse._cross_split`) with its arithmetic, lane by lane."""
+    bracket, :func:`.layout.plane_bracket`), in vector lanes: the far intervals go to ``slot_t``
+    (a stack slot: the eight ``t0``, then the eight ``t1``), and each lane keeps the near part
+    as its current interval in ``state``. Returns the lanes that reach the near side in bits
+    0-7 and those that reach the far side in bits 8-15: the single walk's choice
+    (:func:`.traverse._cross_split`) with its arithmetic, lane by lane."""
     signature = types.int64(state, axis, plane, slot_t)
 
     def codegen(context, builder, sig, args):
@@ -131,15 +131,17 @@ def _split_lanes(typingctx, state, axis, plane, slot_t):
                                align=8)
         t0 = builder.load(lanes_at(state_data, row_at(_T0)), align=8)
         t1 = builder.load(lanes_at(state_data, row_at(_T1)), align=8)
-        margin = splat(builder, ir.Constant(ir.DoubleType(), EXIT_MARGIN), doubles)
         fabs = cgutils.get_or_insert_function(builder.module, ir.FunctionType(doubles, [doubles]), "llvm.fabs.v8f64")
-        double = ir.DoubleType()
+
+        def constant(value):
+            return splat(builder, ir.Constant(ir.DoubleType(), value), doubles)
+
+        margin = constant(EXIT_MARGIN)
         plane = splat(builder, plane_value, doubles)
         t_plane = builder.fmul(builder.fsub(plane, origin), inverse)
-        step = builder.fmul(splat(builder, ir.Constant(double, PLANE_STEP), doubles), builder.call(fabs, [inverse]))
-        width = builder.fmul(builder.fadd(builder.call(fabs, [plane]), splat(builder, ir.Constant(double, PLANE_FLOOR),
-                                                                              doubles)), step)
-        positive = builder.fcmp_ordered(">", inverse, splat(builder, ir.Constant(double, 0.0), doubles))
+        step = builder.fmul(constant(PLANE_STEP), builder.call(fabs, [inverse]))
+        width = builder.fmul(builder.fadd(builder.call(fabs, [plane]), constant(PLANE_FLOOR)), step)
+        positive = builder.fcmp_ordered(">", inverse, constant(0.0))
         t_exit = builder.select(positive, builder.fadd(t_plane, width), t_plane)
         t_entry = builder.select(positive, t_plane, builder.fsub(t_plane, width))
         low = builder.fsub(t0, builder.fmul(margin, builder.call(fabs, [t0])))
