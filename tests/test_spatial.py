@@ -126,6 +126,70 @@ def test_kdtree_rays_along_split_planes_and_through_cell_corners(small_dragon):
     _check(reference, accel, origins, targets - origins)
 
 
+def _rays_at_vertices_beside_planes(accel, vertices, faces, rng):
+    """Rays lying in the plane ``x_axis = o`` for ``o`` at, or between, a split plane's true
+    position ``p`` (a corner's coordinate) and the float32 ``q`` its node stores, aimed at the
+    point of a triangle with its corner at ``p`` that lies in that plane; ``q`` and ``p``
+    differ on a mesh of float64 corners."""
+    kd = accel.kd
+    inner = np.flatnonzero(kd.axis != LEAF)
+    origins, directions = [], []
+    for node in rng.choice(inner, min(len(inner), 400)):
+        axis, stored = kd.axis[node], kd.node_split[node]
+        rounded = vertices[:, axis].astype(np.float32)
+        rounded = np.where(rounded > vertices[:, axis], np.nextafter(rounded, np.float32(-np.inf)), rounded)
+        corners = np.flatnonzero(rounded == stored)
+        if len(corners) == 0:
+            continue
+        corner = rng.choice(corners)
+        exact = vertices[corner, axis]
+        o = rng.choice([exact, stored, 0.5 * (exact + stored)])
+        face = faces[np.flatnonzero((faces == corner).any(axis=1))[0]]
+        others = [v for v in face if v != corner]
+        points = []
+        for other in others:
+            span = vertices[other, axis] - exact
+            if span != 0.0 and 0.0 <= (o - exact) / span <= 1.0:
+                points.append(vertices[corner] + (o - exact) / span * (vertices[other] - vertices[corner]))
+        if len(points) < 2:
+            continue
+        target = 0.5 * (points[0] + points[1])
+        target[axis] = o
+        direction = rng.normal(size=3)
+        direction[axis] = rng.choice([0.0, 1e-12, -1e-12])
+        origins.append(target - direction)
+        directions.append(direction)
+    return np.array(origins).reshape(-1, 3), np.array(directions).reshape(-1, 3)
+
+
+@settings(max_examples=20, deadline=None)
+@given(n=st.integers(2, 400), seed=st.integers(0, 2**16), exact_below=st.sampled_from([0, 64]))
+def test_kdtree_rays_within_a_float32_step_of_float64_planes_property(n, seed, exact_below):
+    """The kd-tree keeps each plane rounded down to float32 and walks a bracket one float32 step
+    wide (:func:`rayaccel.structures.kdtree.layout.plane_bracket`): on a mesh of float64 corners,
+    whose planes lie between float32 numbers, rays lying at the true plane, at the stored one
+    and between them, aimed at triangles that reach the plane, and random rays parallel or
+    nearly parallel to planes there, hit what brute force hits."""
+    rng = np.random.default_rng(seed)
+    corners = rng.uniform(0.0, np.pi, size=(n, 1, 3)) + rng.normal(scale=0.1, size=(n, 3, 3))
+    vertices = corners.reshape(-1, 3)
+    faces = np.arange(3 * n).reshape(n, 3)
+    scene = ra.TriangleMesh(vertices, faces)
+    accel = ra.build(scene, "kdtree", leaf_size=1, exact_below=exact_below)
+    reference = ra.build(scene, "none")
+    _check(reference, accel, *_rays_at_vertices_beside_planes(accel, vertices, faces, rng))
+    m = 300
+    axes = rng.integers(0, 3, m)
+    exact = vertices[rng.integers(0, 3 * n, m), axes]
+    stored = exact.astype(np.float32)
+    stored = np.where(stored > exact, np.nextafter(stored, np.float32(-np.inf)), stored).astype(np.float64)
+    positions = np.select([rng.random(m) < 0.33, rng.random(m) < 0.5], [exact, stored], 0.5 * (exact + stored))
+    origins, directions = _rays_in_planes(scene, axes, positions, rng)
+    grazing = rng.random(m) < 0.3
+    directions[grazing, axes[grazing]] = rng.choice([-1e-9, 1e-9], int(grazing.sum()))
+    _check(reference, accel, origins, directions)
+
+
 def test_octree_and_grids_rays_through_cell_corners_and_planes(small_dragon):
     rng = np.random.default_rng(4)
     reference = ra.build(small_dragon, "none")
