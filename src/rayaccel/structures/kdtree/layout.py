@@ -66,7 +66,7 @@ PLANE_FLOOR = 2.0 ** -126
 class KdTreeArrays(NamedTuple):
     """The arrays a kd-tree traversal kernel reads."""
 
-    lo: np.ndarray            # (3,) float64, root cell (float32 numbers)
+    lo: np.ndarray            # (3,) float64, root cell
     hi: np.ndarray            # (3,) float64
     node_records: np.ndarray  # (n_nodes, 2) int32: float32 plane or first reference, then link << 2 | axis
     leaf_prims: np.ndarray    # (n_references,) int32
@@ -77,6 +77,8 @@ class KdTreeArrays(NamedTuple):
         int32: an inner node's child below the plane and its axis, a leaf's first reference and
         ``count << 2 | LEAF``."""
         node_link = np.asarray(node_link, dtype=np.int32)
+        if len(node_link) >= MAX_NODES:
+            raise ValueError(f"a kd-tree holds fewer than {MAX_NODES:,} nodes, got {len(node_link):,}")
         leaf = (node_link[:, 1] & 3) == LEAF
         exact = np.asarray(node_split, dtype=np.float64)[~leaf]
         rounded = exact.astype(np.float32)
