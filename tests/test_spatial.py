@@ -17,6 +17,7 @@ from hypothesis import strategies as st
 
 import rayaccel as ra
 from rayaccel.geometry.overlap import prim_overlaps_box
+from rayaccel.geometry.rounding import float32_below
 from rayaccel.structures.bvh.wide import COUNT, LINK, WIDTH
 from rayaccel.structures.kdtree.events import END, PLANAR, START, write_node_events
 from rayaccel.structures.kdtree.layout import LEAF
@@ -136,9 +137,7 @@ def _rays_at_vertices_beside_planes(accel, vertices, faces, rng):
     origins, directions = [], []
     for node in rng.choice(inner, min(len(inner), 400)):
         axis, stored = kd.axis[node], kd.node_split[node]
-        rounded = vertices[:, axis].astype(np.float32)
-        rounded = np.where(rounded > vertices[:, axis], np.nextafter(rounded, np.float32(-np.inf)), rounded)
-        corners = np.flatnonzero(rounded == stored)
+        corners = np.flatnonzero(float32_below(vertices[:, axis]) == stored)
         if len(corners) == 0:
             continue
         corner = rng.choice(corners)
@@ -181,8 +180,7 @@ def test_kdtree_rays_within_a_float32_step_of_float64_planes_property(n, seed, e
     m = 300
     axes = rng.integers(0, 3, m)
     exact = vertices[rng.integers(0, 3 * n, m), axes]
-    stored = exact.astype(np.float32)
-    stored = np.where(stored > exact, np.nextafter(stored, np.float32(-np.inf)), stored).astype(np.float64)
+    stored = float32_below(exact).astype(np.float64)
     positions = np.select([rng.random(m) < 0.33, rng.random(m) < 0.5], [exact, stored], 0.5 * (exact + stored))
     origins, directions = _rays_in_planes(scene, axes, positions, rng)
     grazing = rng.random(m) < 0.3

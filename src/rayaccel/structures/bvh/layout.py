@@ -41,6 +41,7 @@ from typing import NamedTuple
 import numpy as np
 
 from ..._memory import cache_line_aligned
+from ...geometry.rounding import float32_above, float32_below
 
 __all__ = ["BvhArrays", "node_rows", "float32_boxes", "pack_nodes"]
 
@@ -78,11 +79,7 @@ def node_rows(per_node: np.ndarray) -> np.ndarray:
 def float32_boxes(node_box: np.ndarray) -> np.ndarray:
     """``node_box`` (n, 6), lo then hi, rounded outwards to float32: each box contains the
     exact one, so that a slab test of the rounded box culls nothing the exact box holds."""
-    boxes = node_box.astype(np.float32)
-    lo, hi = boxes[:, :3], boxes[:, 3:]
-    lo[...] = np.where(lo > node_box[:, :3], np.nextafter(lo, np.float32(-np.inf)), lo)
-    hi[...] = np.where(hi < node_box[:, 3:], np.nextafter(hi, np.float32(np.inf)), hi)
-    return boxes
+    return np.hstack((float32_below(node_box[:, :3]), float32_above(node_box[:, 3:])))
 
 
 def pack_nodes(node_box: np.ndarray, node_first: np.ndarray, node_count: np.ndarray) -> np.ndarray:

@@ -21,7 +21,7 @@ from .build_sah_binned import build_binned_top
 from .build_sah_events import build_subtrees
 from .layout import LEAF, MAX_NODES, KdTreeArrays, node_cells
 from .nearest import kdtree_nearest_kernel
-from .traverse import kdtree_closest_kernel, kdtree_crossings_kernel
+from .traverse import RAY_ROW, kdtree_closest_kernel, kdtree_crossings_kernel
 from .traverse_packet import PACKET, PACKET_ROWS, kdtree_packet_kernel
 
 __all__ = ["KdTree"]
@@ -269,14 +269,14 @@ class KdTree(Accelerator):
         with self._mailboxes_for(action).lend(len(batch.origins)) as (mailbox, base):
             if action.mode == NEAREST and work.shape[0] == 0 and self._packets_pay(batch):
                 walk_rays(kdtree_packet_kernel, len(batch.origins), *tree, *batch, any_hit, mailbox, base, stack_node,
-                          stack_t, thread_rows((rows, 6)), thread_rows((rows, self.max_depth + 2), np.int64),
+                          stack_t, thread_rows((rows, RAY_ROW)), thread_rows((rows, self.max_depth + 2), np.int64),
                           thread_rows((rows, self.max_depth + 2, 2 * PACKET)),
                           thread_rows((rows, PACKET_ROWS * PACKET)), thread_rows((rows, PACKET), np.int64), action,
                           work)
                 return
             walk = kdtree_closest_kernel if action.mode == NEAREST else kdtree_crossings_kernel
             walk_rays(walk, len(batch.origins), *tree, *batch, any_hit, mailbox, base, stack_node, stack_t,
-                      thread_rows((rows, 6)), action, work)
+                      thread_rows((rows, RAY_ROW)), action, work)
 
     def _packets_pay(self, batch) -> bool:
         """Whether to trace ``batch`` in packets (the ``packets`` option, on a coherent batch)."""

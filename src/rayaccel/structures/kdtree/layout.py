@@ -49,6 +49,7 @@ from typing import NamedTuple
 import numpy as np
 
 from ..._jit import inline_kernel, kernel
+from ...geometry.rounding import float32_below
 from ..build_arrays import reserve_rows
 
 __all__ = ["LEAF", "MAX_NODES", "PLANE_STEP", "PLANE_FLOOR", "KdTreeArrays", "plane_bracket", "node_cells",
@@ -80,9 +81,7 @@ class KdTreeArrays(NamedTuple):
         if len(node_link) >= MAX_NODES:
             raise ValueError(f"a kd-tree holds fewer than {MAX_NODES:,} nodes, got {len(node_link):,}")
         leaf = (node_link[:, 1] & 3) == LEAF
-        exact = np.asarray(node_split, dtype=np.float64)[~leaf]
-        rounded = exact.astype(np.float32)
-        rounded = np.where(rounded > exact, np.nextafter(rounded, np.float32(-np.inf)), rounded)
+        rounded = float32_below(np.asarray(node_split, dtype=np.float64)[~leaf])
         if not np.isfinite(rounded).all():
             raise ValueError("a kd-tree split plane lies beyond the float32 range")
         planes = np.zeros(len(node_link), dtype=np.float32)

@@ -36,7 +36,10 @@ from ..actions import NEAREST, finish_ray_in_mode, intersect_references
 from ..base import EXIT_MARGIN, settled_before
 from .layout import LEAF, PLANE_FLOOR, PLANE_STEP
 
-__all__ = ["kdtree_closest_kernel", "kdtree_crossings_kernel", "walk_singly"]
+__all__ = ["RAY_ROW", "kdtree_closest_kernel", "kdtree_crossings_kernel", "walk_singly"]
+
+RAY_ROW = 6
+"""Width of a walk's per-thread ``inv_dir`` row: the ray's reciprocal direction and its plane steps."""
 
 
 @inline_kernel
@@ -101,12 +104,12 @@ def walk_singly(ray_first, ray_end, tid, lo, hi, node_planes, node_links, leaf_p
     """Trace rays ``ray_first`` to ``ray_end - 1`` (one chunk of :func:`rayaccel._jit.on_threads`), their
     stacks in row ``tid``; ``stack_node`` (threads, depth) int32 and ``stack_t`` (threads, depth, 2);
     ``node_links`` are the node records (:mod:`.layout`), ``node_planes`` the same seen as float32;
-    ``mailbox`` as in the uniform grid (empty for
-    the closest hit, which needs none). A step reads the ray on the node's axis from memory
-    (``inv_dir`` (threads, 6) holds the ray's reciprocal direction, then
-    ``PLANE_STEP`` times its magnitude, see :func:`_cross_split`): taken from a tuple by a
-    varying index, the reciprocal was computed again, a division per step, which took 7 % of
-    the walk's samples (full dragon, incoherent rays, one thread)."""
+    ``mailbox`` as in the uniform grid (empty for the closest hit, which needs none). A step
+    reads the ray on the node's axis from memory (``inv_dir`` (threads, :data:`RAY_ROW`) holds
+    the ray's reciprocal direction, then ``PLANE_STEP`` times its magnitude, see
+    :func:`_cross_split`): taken from a tuple by a varying index, the reciprocal was computed
+    again, a division per step, which took 7 % of the walk's samples (full dragon, incoherent
+    rays, one thread)."""
     count_work = work.shape[0] > 0
     row_of_thread = unsigned(tid)
     for i in range(ray_first, ray_end):
