@@ -129,15 +129,16 @@ def test_packets_option(small_dragon):
 @numba.njit(cache=False)
 def _split_by_lane_and_alone(state, axis, node_records, slot, alone):
     """The vector split of all lanes, and the single walk's split of each lane alone at the plane
-    of ``node_records[0]``."""
-    planes = node_records.view(np.float32)
+    of ``node_records[0]``, read flat as the walks read them."""
+    words = node_records.reshape(-1)
+    planes = words.view(np.float32)
     for r in range(PACKET):
         o, inv = state[axis * PACKET + r], state[(3 + axis) * PACKET + r]
         t0, t1 = state[6 * PACKET + r], state[7 * PACKET + r]
-        nxt, near_t1, pushed, push_t0, push_t1 = _cross_split(planes, node_records[0, 1], 0, o, inv,
+        nxt, near_t1, pushed, push_t0, push_t1 = _cross_split(planes, words[1], 0, o, inv,
                                                               PLANE_STEP * abs(inv), t0, t1)
         alone[r, 0], alone[r, 1], alone[r, 2], alone[r, 3], alone[r, 4] = nxt, near_t1, pushed, push_t0, push_t1
-    return _split_lanes(state, axis, np.float64(planes[0, 0]), slot)
+    return _split_lanes(state, axis, np.float64(planes[0]), slot)
 
 
 def test_vector_split_is_the_single_walks_split_in_each_lane():

@@ -265,7 +265,7 @@ class KdTree(Accelerator):
         rows = numba.config.NUMBA_NUM_THREADS
         stack_node = thread_rows((rows, self.max_depth + 2), np.int32)
         stack_t = thread_rows((rows, self.max_depth + 2, 2))
-        tree = (k.lo, k.hi, k.node_planes, k.node_records, k.leaf_prims, self.scene.kind, self.geometry)
+        tree = (k.lo, k.hi, *k.walk_records, k.leaf_prims, self.scene.kind, self.geometry)
         with self._mailboxes_for(action).lend(len(batch.origins)) as (mailbox, base):
             if action.mode == NEAREST and work.shape[0] == 0 and self._packets_pay(batch):
                 walk_rays(kdtree_packet_kernel, len(batch.origins), *tree, *batch, any_hit, mailbox, base, stack_node,
@@ -290,7 +290,7 @@ class KdTree(Accelerator):
         k = self.kd
         rows, depth = numba.config.NUMBA_NUM_THREADS, self.max_depth + 2
         pad = 1e-9 * float(np.abs(k.lo).max() + np.abs(k.hi).max() + (k.hi - k.lo).max())
-        kdtree_nearest_kernel(k.lo, k.hi, k.node_planes, k.node_records, k.leaf_prims, self.scene.kind,
+        kdtree_nearest_kernel(k.lo, k.hi, *k.walk_records, k.leaf_prims, self.scene.kind,
                               self.geometry, pad, points, limit_d2,
                               thread_rows((rows, depth), np.int32), thread_rows((rows, depth)),
                               thread_rows((rows, depth, 6)), out_d2, out_prim)

@@ -48,12 +48,12 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ..._jit import inline_kernel, kernel
+from ..._jit import inline_kernel, kernel, unsigned
 from ...geometry.rounding import float32_below
 from ..build_arrays import reserve_rows
 
-__all__ = ["LEAF", "MAX_NODES", "PLANE_STEP", "PLANE_FLOOR", "KdTreeArrays", "plane_bracket", "node_cells",
-           "add_children", "copy_cell", "split_cell"]
+__all__ = ["LEAF", "MAX_NODES", "PLANE_STEP", "PLANE_FLOOR", "KdTreeArrays", "node_word", "node_plane", "leaf_first",
+           "plane_bracket", "node_cells", "add_children", "copy_cell", "split_cell"]
 
 LEAF = 3
 MAX_NODES = 1 << 29
@@ -92,6 +92,17 @@ class KdTreeArrays(NamedTuple):
         return cls(lo, hi, node_records, leaf_prims)
 
     @property
+    def walk_records(self) -> tuple[np.ndarray, np.ndarray]:
+        """The records as the walks read them, ``(planes, words)``: one flat array seen as float32
+        and as int32, node ``k``'s first column at ``2k`` and its second at ``2k + 1`` (read with
+        :func:`node_word`, :func:`node_plane` and :func:`leaf_first`). Numba indexes a 2-D array
+        by multiplying the row by its length, read at run time, which put a multiplication on the
+        path from one node to the next: flat, forest incoherent rays 1.05 times as fast (closest
+        and any hit), the full dragon's 0.99 / 1.05 (one thread, medians of 5-7 interleaved rounds)."""
+        words = self.node_records.reshape(-1)
+        return words.view(np.float32), words
+
+    @property
     def node_planes(self) -> np.ndarray:
         """(n_nodes, 2) float32 view of the records, for the walks: column 0 is an inner node's plane."""
         return self.node_records.view(np.float32)
@@ -128,6 +139,24 @@ class KdTreeArrays(NamedTuple):
     @property
     def nbytes(self) -> int:
         return int(sum(a.nbytes for a in self))
+
+
+@inline_kernel
+def node_word(words, node):
+    """Node ``node``'s second column in the flat records (:attr:`KdTreeArrays.walk_records`)."""
+    return words[unsigned(2 * node + 1)]
+
+
+@inline_kernel
+def node_plane(planes, node):
+    """Inner node ``node``'s float32 plane in the flat records, as a float64."""
+    return np.float64(planes[unsigned(2 * node)])
+
+
+@inline_kernel
+def leaf_first(words, node):
+    """Leaf ``node``'s first reference in the flat records."""
+    return words[unsigned(2 * node)]
 
 
 @inline_kernel

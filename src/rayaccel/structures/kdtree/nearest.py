@@ -18,7 +18,7 @@ from numba import prange
 
 from ..._jit import inline_kernel, parallel_kernel, thread_id
 from ..point_actions import box_distance2, nearest_in_refs
-from .layout import plane_bracket
+from .layout import leaf_first, node_plane, node_word, plane_bracket
 
 __all__ = ["kdtree_nearest_kernel"]
 
@@ -39,7 +39,7 @@ def _cell_distance2(cell, p):
 def kdtree_nearest_kernel(lo, hi, node_planes, node_links, leaf_prims, kind, geom, pad, points, limit_d2,
                           stack_node, stack_d2, stack_cell, out_d2, out_prim):
     """For each point, the closest primitive within ``sqrt(limit_d2[i])`` (``out_d2``, ``out_prim``);
-    ``node_links`` the node records (:mod:`.layout`), ``node_planes`` the same seen as float32,
+    ``node_planes`` and ``node_links`` the flat node records (:attr:`.layout.KdTreeArrays.walk_records`),
     ``geom`` in reference order; stacks as deep as the tree + 2, ``stack_cell`` (threads, depth, 6)."""
     for i in prange(points.shape[0]):
         tid = thread_id()
@@ -52,15 +52,15 @@ def kdtree_nearest_kernel(lo, hi, node_planes, node_links, leaf_prims, kind, geo
             node = -1
         sp = 0
         while node >= 0:
-            link = node_links[node, 1]
+            link = node_word(node_links, node)
             axis = link & 3
             if axis == 3:
-                first = node_links[node, 0]
+                first = leaf_first(node_links, node)
                 best_d2, best_prim = nearest_in_refs(kind, geom, leaf_prims, first, first + (link >> 2), True, p[0],
                                                      p[1], p[2], best_d2, best_prim)
                 node = -1
             else:
-                plane_below, plane_above = plane_bracket(node_planes[node, 0])
+                plane_below, plane_above = plane_bracket(node_plane(node_planes, node))
                 below = link >> 2
                 if p[axis] < plane_below:
                     node, far = below, below + 1

@@ -34,7 +34,7 @@ from ...geometry.primitive import ray_setup
 from ...rays import ray_limit, result_row
 from ..actions import NEAREST, finish_ray_in_mode, intersect_references
 from ..base import EXIT_MARGIN, settled_before
-from .layout import LEAF, PLANE_FLOOR, PLANE_STEP
+from .layout import LEAF, PLANE_FLOOR, PLANE_STEP, leaf_first, node_plane, node_word
 
 __all__ = ["RAY_ROW", "kdtree_closest_kernel", "kdtree_crossings_kernel", "walk_singly"]
 
@@ -65,7 +65,7 @@ def _cross_split(node_planes, word, node, oa, inv_a, step_a, t0, t1):
     branches, forest incoherent rays 1.22 / 1.24 times as fast (closest / any hit), the dragon's
     1.04 / 1.07, camera and shadow rays 0.97-0.99 (one thread, medians of 5-7 interleaved
     rounds)."""
-    plane = np.float64(node_planes[node, 0])
+    plane = node_plane(node_planes, node)
     below = word >> 2
     t_plane = (plane - oa) * inv_a
     width = (abs(plane) + PLANE_FLOOR) * step_a
@@ -103,7 +103,7 @@ def walk_singly(ray_first, ray_end, tid, lo, hi, node_planes, node_links, leaf_p
                 action, work):
     """Trace rays ``ray_first`` to ``ray_end - 1`` (one chunk of :func:`rayaccel._jit.on_threads`), their
     stacks in row ``tid``; ``stack_node`` (threads, depth) int32 and ``stack_t`` (threads, depth, 2);
-    ``node_links`` are the node records (:mod:`.layout`), ``node_planes`` the same seen as float32;
+    ``node_planes`` and ``node_links`` are the flat node records (:attr:`.layout.KdTreeArrays.walk_records`);
     ``mailbox`` as in the uniform grid (empty for the closest hit, which needs none). A step
     reads the ray on the node's axis from memory (``inv_dir`` (threads, :data:`RAY_ROW`) holds
     the ray's reciprocal direction, then ``PLANE_STEP`` times its magnitude, see
@@ -136,7 +136,7 @@ def walk_singly(ray_first, ray_end, tid, lo, hi, node_planes, node_links, leaf_p
         sp = 0
         while node >= 0:
             n_nodes += 1
-            word = node_links[node, 1]
+            word = node_word(node_links, node)
             axis = word & 3
             if axis != LEAF:
                 node, t1, pushed, push_t0, push_t1 = _cross_split(node_planes, word, node, origins[i, axis],
@@ -149,7 +149,7 @@ def walk_singly(ray_first, ray_end, tid, lo, hi, node_planes, node_links, leaf_p
                 sp += np.int64(pushed >= 0)
                 continue
             n_leaves += 1
-            first = node_links[node, 0]
+            first = leaf_first(node_links, node)
             best_t, best_prim, best_u, best_v, n_tests, _ = intersect_references(
                 mode, action, row, first, first + (word >> 2), leaf_prims, mailbox, tid, ray_id_base + i, kind,
                 geom, True, ray, ray_t_min, best_t, best_prim, best_u, best_v, n_tests, 0, any_hit)

@@ -42,7 +42,7 @@ from ...rays import ray_limit, result_row
 from ..actions import NEAREST, finish_ray_in_mode, intersect_references
 from ..base import EXIT_MARGIN, settled_before
 from ..bvh.wide_slab import highest_bit, splat
-from .layout import LEAF, PLANE_FLOOR, PLANE_STEP
+from .layout import LEAF, PLANE_FLOOR, PLANE_STEP, leaf_first, node_plane, node_word
 from .traverse import walk_singly
 
 __all__ = ["PACKET", "PACKET_ROWS", "kdtree_packet_kernel"]
@@ -240,12 +240,12 @@ def kdtree_packet_kernel(ray_first, ray_end, tid, lo, hi, node_planes, node_link
         node = 0 if lanes != 0 else -1
         sp = 0
         while node >= 0:
-            word = node_links[node, 1]
+            word = node_word(node_links, node)
             axis = word & 3
             if axis != LEAF:
                 below = word >> 2
                 near = below if (positive >> axis) & 1 else below + 1
-                sides = _split_lanes(state, axis, np.float64(node_planes[node, 0]), packet_t[tid, sp])
+                sides = _split_lanes(state, axis, node_plane(node_planes, node), packet_t[tid, sp])
                 near_lanes = sides & lanes
                 far_lanes = (sides >> PACKET) & lanes
                 if far_lanes != 0:
@@ -257,7 +257,7 @@ def kdtree_packet_kernel(ray_first, ray_end, tid, lo, hi, node_planes, node_link
                     lanes = near_lanes
                     continue
             elif word >> 2 != 0:
-                first = node_links[node, 0]
+                first = leaf_first(node_links, node)
                 done = _visit_leaf_lanes(action, hit_slot, first, first + (word >> 2), leaf_prims, mailbox, tid,
                                          ray_id_base, kind, geom, origins, directions, packet_first, lanes & ~done,
                                          done, state, best_prim, any_hit)
