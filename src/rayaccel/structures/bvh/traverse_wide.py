@@ -94,9 +94,11 @@ def walk_tree(mode, action, row, records, links, prim_order, kind, geom, mailbox
     """Walk one ray (from ``t_min`` on) through the wide tree rooted at ``root``, its stack in row
     ``tid``, entering boxes within ``[span_lo, min(best_t, span_hi)]`` and giving each primitive of
     a leaf it reaches the action: through :func:`..actions.intersect_references`, which skips
-    those already stamped ``stamp`` in ``mailbox``, or, when ``mailbox`` is empty, through
-    :func:`visit_leaf`, which has no mailbox test (taking the mailbox path without a mailbox
-    cost the BVH's walk 0.82-0.98 of its speed). ``origin``, ``inv_dir`` and ``near_*`` as
+    those already stamped ``stamp`` in ``mailbox``, or, when ``mailbox`` is empty or ``None``,
+    through :func:`visit_leaf`, which has no mailbox test (taking the mailbox path without a
+    mailbox cost the BVH's walk 0.82-0.98 of its speed). ``None``, as the BVH's own walks pass,
+    prunes the mailbox path before Numba types it: the first ``intersect`` on an empty cache
+    took 8.5 s of CPU instead of 10.5 (bunny, 2026-11-27). ``origin``, ``inv_dir`` and ``near_*`` as
     for :func:`.wide_slab.enter_children`, ``ray`` the primitive test's set-up, ``child_entry``
     this thread's row of children's entry distances. Returns the walk's ``(best_t, best_prim,
     best_u, best_v)`` and its counters ``(nodes, leaves, tests, skips)``; a leaf counts as a node
@@ -149,7 +151,7 @@ def walk_tree(mode, action, row, records, links, prim_order, kind, geom, mailbox
             n_nodes += 1
             n_leaves += 1
             first = stack_link[stack_row, top]
-            if mailbox.shape[0] == 0:
+            if mailbox is None or mailbox.shape[0] == 0:
                 best_t, best_prim, best_u, best_v, tests = visit_leaf(mode, action, row, kind, geom, prim_order, first,
                                                                       count, ray, t_min, best_t, best_prim, best_u,
                                                                       best_v, any_hit)
@@ -177,7 +179,6 @@ def _walk(ray_first, ray_end, tid, root_box, records, links, prim_order, kind, g
     returns how many there were."""
     count_work = work.shape[0] > 0
     child_entry = entry[tid]
-    no_mailbox = np.empty((0, 0), dtype=np.int32)
     unusable = 0
     for i in range(ray_first, ray_end):
         row = result_row(hit_slot, i)
@@ -202,7 +203,7 @@ def _walk(ray_first, ray_end, tid, root_box, records, links, prim_order, kind, g
             continue
         ray = ray_setup(ox, oy, oz, dx, dy, dz)
         best_t, best_prim, best_u, best_v, n_nodes, n_leaves, n_tests, _ = walk_tree(
-            mode, action, row, records, links, prim_order, kind, geom, no_mailbox, tid, 0, 0, origin, inv_dir, near_x,
+            mode, action, row, records, links, prim_order, kind, geom, None, tid, 0, 0, origin, inv_dir, near_x,
             near_y, near_z, ray, ray_t_min, ray_t_min, np.inf, best_t, best_prim, best_u, best_v, any_hit, stack_link,
             stack_count, stack_t, child_entry)
         finish_ray_in_mode(mode, action, row, best_t, best_prim, best_u, best_v)
@@ -219,8 +220,9 @@ def wide_nearest_kernel(ray_first, ray_end, tid, root_box, records, links, prim_
                         work):
     """The closest-hit and any-hit walk (an action of mode ``NEAREST``): the other modes' code is
     pruned away before it is compiled (:func:`..actions.visit_prim_in_mode`), so that a first
-    ``intersect`` compiles none of it. Compile time on an empty cache, CPU: 5.4 s for this
-    kernel, 9.8 s for :func:`wide_crossings_kernel`, the walk of every mode."""
+    ``intersect`` compiles none of it, nor the mailbox path (:func:`walk_tree`). Compile time
+    on an empty cache, CPU: 5.4 s for this kernel, 9.8 s for :func:`wide_crossings_kernel`, the
+    walk of every mode (older Numba, quieter host)."""
     return _walk(ray_first, ray_end, tid, root_box, records, links, prim_order, kind, geom, origins, directions,
                  t_min, t_max, hit_slot, any_hit, stack_link, stack_count, stack_t, entry, NEAREST, action, work)
 
