@@ -258,7 +258,7 @@ class KdTree(Accelerator):
         """(n_nodes, 6) cell of every node, lo and hi, derived from the planes at each call: kept
         beside the tree, with each node's depth, they held 93.5 bytes a triangle of the full
         dragon, more than the 55.3 of the tree and its primitives that the queries read."""
-        return node_cells(self.kd.lo, self.kd.hi, self.kd.node_records)[0]
+        return node_cells(self.kd.lo, self.kd.hi, *self.kd.walk_records)[0]
 
     def _trace(self, batch, any_hit, action, work):
         k = self.kd
@@ -304,7 +304,7 @@ class KdTree(Accelerator):
         k = self.kd
         leaf = k.axis == LEAF
         counts = k.count[leaf]
-        cells, depth = node_cells(k.lo, k.hi, k.node_records)
+        cells, depth = node_cells(k.lo, k.hi, *k.walk_records)
         areas = box_area(cells[:, :3], cells[:, 3:])
         nonempty = int(np.count_nonzero(counts))
         over_leaf_size = counts > self.options["leaf_size"]

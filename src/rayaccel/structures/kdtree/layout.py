@@ -170,22 +170,22 @@ def plane_bracket(plane):
 
 
 @kernel
-def node_cells(lo, hi, node_records):
-    """(n_nodes, 6) cell of every node (lo, hi), from the root box and the split planes, each
-    child's reaching across its plane's bracket (:func:`plane_bracket`)."""
-    n = node_records.shape[0]
-    planes = node_records.view(np.float32)
+def node_cells(lo, hi, planes, words):
+    """(n_nodes, 6) cell of every node (lo, hi), from the root box and the split planes of the
+    flat records (:attr:`KdTreeArrays.walk_records`), each child's reaching across its plane's
+    bracket (:func:`plane_bracket`)."""
+    n = words.shape[0] // 2
     cells = np.empty((n, 6))
     cells[0, :3] = lo
     cells[0, 3:] = hi
     depth = np.zeros(n, dtype=np.int64)
     for node in range(n):
-        word = node_records[node, 1]
+        word = node_word(words, node)
         axis = word & 3
         if axis == LEAF:
             continue
         below = word >> 2
-        plane_below, plane_above = plane_bracket(planes[node, 0])
+        plane_below, plane_above = plane_bracket(node_plane(planes, node))
         cells[below] = cells[node]
         cells[below + 1] = cells[node]
         cells[below, axis + 3] = plane_above

@@ -18,7 +18,7 @@ from numba import prange
 
 from ..._jit import inline_kernel, parallel_kernel, thread_id
 from ..point_actions import box_distance2, nearest_in_refs
-from .layout import leaf_first, node_plane, node_word, plane_bracket
+from .layout import LEAF, leaf_first, node_plane, node_word, plane_bracket
 
 __all__ = ["kdtree_nearest_kernel"]
 
@@ -54,7 +54,7 @@ def kdtree_nearest_kernel(lo, hi, node_planes, node_links, leaf_prims, kind, geo
         while node >= 0:
             link = node_word(node_links, node)
             axis = link & 3
-            if axis == 3:
+            if axis == LEAF:
                 first = leaf_first(node_links, node)
                 best_d2, best_prim = nearest_in_refs(kind, geom, leaf_prims, first, first + (link >> 2), True, p[0],
                                                      p[1], p[2], best_d2, best_prim)
