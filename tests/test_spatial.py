@@ -19,13 +19,14 @@ import rayaccel as ra
 from rayaccel.geometry.overlap import prim_overlaps_box
 from rayaccel.geometry.rounding import float32_below
 from rayaccel.structures.bvh.wide import COUNT, LINK, WIDTH
+from rayaccel.structures.kdtree.accelerator import ROWS_BYTES_PER_TRIANGLE
 from rayaccel.structures.kdtree.events import END, PLANAR, START, write_node_events
 from rayaccel.structures.kdtree.layout import LEAF
 
 SPATIAL = ["kdtree", "octree", "hgrid", "grid-bvh"]
 VARIANTS = {
     "kdtree": [{}, {"leaf_size": 1, "empty_bonus": 0.0, "threads": 1, "exact_below": 0},
-               {"exact_below": 64, "bins": 8}],
+               {"exact_below": 64, "bins": 8}, {"max_depth": 12}],
     "octree": [{}, {"insert": "bbox", "leaf_size": 2}],
     "hgrid": [{}, {"insert": "exact", "mailbox": False, "threshold": 2}],
     "grid-bvh": [{}, {"threshold": 1, "density": 2.0}, {"density": 0.5, "mailbox": True}],
@@ -54,28 +55,33 @@ def test_agrees_with_brute_force(scene_name, method, options, request):
         _check(reference, accel, origins, directions)
 
 
-@pytest.mark.parametrize("method", ["kdtree", "grid-bvh"])
+@pytest.mark.parametrize(("method", "options"), [("kdtree", {}), ("kdtree", {"max_depth": 12}), ("grid-bvh", {})])
 @pytest.mark.parametrize("scene_name", ["small_dragon", "bunny", "spheres"])
-def test_references_read_their_primitives_in_reference_order(method, scene_name, request):
+def test_references_read_their_primitives_in_reference_order(method, options, scene_name, request):
     """The kd-tree and the grid-BVH hybrid test a leaf's or a cell's primitives from a copy laid
-    out in the order of their references: triangles, which their references repeat, always in
-    vertex indices (float32 rows would repeat them whole), spheres as rows. Each counts that
-    copy instead of the scene's float64 rows among the bytes a query reads."""
+    out in the order of their references: spheres as rows; triangles, which their references
+    repeat, in vertex indices, except in a kd-tree over a mesh exact in float32 whose float32
+    rows keep it within ``ROWS_BYTES_PER_TRIANGLE`` (the small dragon's tree cut at depth 12:
+    65 bytes a triangle; its default tree would take 206). Each counts that copy instead of the
+    scene's float64 rows among the bytes a query reads."""
     scene = request.getfixturevalue(scene_name)
-    layout = "rows" if scene_name == "spheres" else "indexed"
-    accel = ra.build(scene, method)
+    accel = ra.build(scene, method, **options)
     refs = accel.kd.leaf_prims if method == "kdtree" else accel.hybrid.cell_prims
+    structure = (accel.kd.nbytes if method == "kdtree" else accel.hybrid.nbytes + accel.wide.nbytes
+                 + accel.wide_root.nbytes + accel.mailboxes.nbytes)
+    rows_fit = (method == "kdtree" and scene_name != "spheres" and scene.float32_exact
+                and structure + 36 * len(refs) <= ROWS_BYTES_PER_TRIANGLE * len(scene))
+    assert rows_fit == (scene_name == "small_dragon" and options == {"max_depth": 12})
     expected = scene.geometry[refs]
-    if layout == "rows":
+    if scene_name == "spheres" or rows_fit:
         corners = np.asarray(accel.geometry, dtype=np.float64)
         assert accel.geometry.dtype == (np.float64 if scene_name == "spheres" else np.float32)
+        geometry_bytes = accel.geometry.nbytes
     else:
         corner_ids, leaf_vertices = accel.geometry
         corners = leaf_vertices[corner_ids].reshape(-1, 9)
+        geometry_bytes = sum(a.nbytes for a in accel.geometry)
     np.testing.assert_array_equal(corners, expected)
-    structure = (accel.kd.nbytes if method == "kdtree" else accel.hybrid.nbytes + accel.wide.nbytes
-                 + accel.wide_root.nbytes + accel.mailboxes.nbytes)
-    geometry_bytes = sum(a.nbytes for a in accel.geometry) if layout == "indexed" else accel.geometry.nbytes
     assert accel.stats()["bytes"] == structure + geometry_bytes
 
 

@@ -12,6 +12,7 @@ import numpy as np
 from ..._jit import kernel, thread_count, thread_rows
 from ..._validate import check_flag, check_number
 from ...geometry.gather import layout_nbytes
+from ...geometry.kinds import TRIANGLE
 from ...ray_order import MIN_PACKET_RAYS, lane_packets_pay, packets_pay, sample_neighbours
 from ...stats import box_area, surface_area_stats
 from ..actions import NEAREST
@@ -24,9 +25,14 @@ from .nearest import kdtree_nearest_kernel
 from .traverse import RAY_ROW, kdtree_closest_kernel, kdtree_crossings_kernel
 from .traverse_packet import PACKET, PACKET_ROWS, kdtree_packet_kernel
 
-__all__ = ["KdTree"]
+__all__ = ["KdTree", "ROWS_BYTES_PER_TRIANGLE"]
 
 _MAX_PRIMS = 1 << 28  # leaf counts are stored as count << 2 in an int32
+ROW_BYTES = 36
+"""Bytes of one float32 row: a triangle's three corners."""
+ROWS_BYTES_PER_TRIANGLE = 90.0
+"""The most bytes a triangle the kd-tree spends to keep its triangles as float32 rows, under the
+91.9 that Embree's BVH holds on the full dragon (measured here): the budget of every layout."""
 _BATCHES_PER_THREAD = 4
 
 
@@ -198,14 +204,18 @@ class KdTree(Accelerator):
 
     def _derive_from_tree(self) -> None:
         """What the queries read besides the built (or loaded) tree: the primitives in reference
-        order, read one after the other at a leaf, triangles in the indexed layout
-        (:meth:`~rayaccel.scene.TriangleMesh.gather`), and the tree's depth, which sizes the
-        walks' stacks. Float32 rows, 36 bytes a reference, held 63 bytes a triangle of the full
-        dragon (1.75 references each) and put the kd-tree at 100.5 bytes a triangle, over
-        Embree's 91.9; indexed, 70.6, and 0.92-1.01 times as fast (medians of 7 interleaved
-        rounds, camera, incoherent and shadow rays, closest and any hit, two threads; 16-byte
-        nodes then, 55.3 bytes a triangle indexed with the 8-byte nodes of :mod:`.layout`)."""
-        self.geometry = self.scene.gather(self.kd.leaf_prims, indexed=True)
+        order, read one after the other at a leaf (:meth:`~rayaccel.scene.TriangleMesh.gather`),
+        and the tree's depth, which sizes the walks' stacks. Triangles are float32 rows, 36 bytes
+        a reference, when the mesh is exact in float32 and the structure then stays within
+        :data:`ROWS_BYTES_PER_TRIANGLE`, else indexed: rows spare a leaf's test the dependent
+        load of its vertices. On the full dragon (1.75 references a triangle, 8-byte nodes),
+        85.2 bytes a triangle instead of 55.3, and incoherent rays 1.10-1.12 / 1.12-1.18 times
+        as fast (closest / any hit), shadow rays 0.99-1.06, camera rays 0.96-1.09 (one thread,
+        separate processes, two runs each, medians of 5 rounds, 2026-11-27). Where the tree
+        fits the caches they gain nothing: a float32 copy of forest-small-chair, incoherent rays
+        0.92-1.07; dragon-48k, 0.95-1.07 for 202.6 bytes a triangle instead of 114.4, over the
+        limit."""
+        self.geometry = self.scene.gather(self.kd.leaf_prims, indexed=not self._rows_fit())
         self.max_depth = _tree_depth(self.kd)
 
     def _build(self, scene, threads, traversal_cost, intersection_cost, empty_bonus, leaf_size, max_depth, bins,
@@ -253,6 +263,17 @@ class KdTree(Accelerator):
         for placeholder, first, result in zip([task[0] for task in upper], firsts, results):
             tasks += [(first + node - 1 if node else placeholder, *task) for node, *task in result[3]]
         return tree, tasks
+
+    def _rows_fit(self) -> bool:
+        """Whether the triangles can be float32 rows in reference order (:meth:`_derive_from_tree`):
+        exact in float32, and the tree, its references and the rows within
+        :data:`ROWS_BYTES_PER_TRIANGLE`."""
+        scene = self.scene
+        if scene.kind != TRIANGLE or not scene.float32_exact:
+            return False
+        k = self.kd
+        rows_bytes = k.nbytes + len(k.leaf_prims) * ROW_BYTES
+        return rows_bytes <= ROWS_BYTES_PER_TRIANGLE * len(scene)
 
     def node_cells(self) -> np.ndarray:
         """(n_nodes, 6) cell of every node, lo and hi, derived from the planes at each call: kept
