@@ -62,7 +62,7 @@ def test_references_read_their_primitives_in_reference_order(method, options, sc
     out in the order of their references: spheres as rows; triangles, which their references
     repeat, in vertex indices, except in a kd-tree over a mesh exact in float32 whose float32
     rows keep it within ``ROWS_BYTES_PER_TRIANGLE`` (the small dragon's tree cut at depth 12:
-    65 bytes a triangle; its default tree would take 206). Each counts that copy instead of the
+    65 bytes a triangle; its default tree would take 105). Each counts that copy instead of the
     scene's float64 rows among the bytes a query reads."""
     scene = request.getfixturevalue(scene_name)
     accel = ra.build(scene, method, **options)

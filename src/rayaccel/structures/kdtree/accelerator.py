@@ -140,14 +140,20 @@ class KdTree(Accelerator):
     empty_bonus : float in [0, 1), default 0.2
         Discount on the cost of a split with one empty side (Wald & Havran's
         lambda = 0.8); larger values cut off more empty space.
-    leaf_size : int, default 4
+    leaf_size : int, default 12
         Nodes with at most this many primitives become leaves without trying
         a split; the SAH makes larger leaves where splitting does not pay.
-        Measured (``rayaccel experiment leaf-size``): against 1, leaf size 4
-        builds faster (bunny 0.81 s instead of 1.40 s, 203k dragon 2.6 s
-        instead of 3.1 s, before the binned upper levels) with primary rays as
-        fast or 3-5 % faster; against 8, primary rays on the full dragon are
-        13 % faster (4.91 against 4.33 Mrays/s).
+        The cost model prices a node step below a test, but on a CPU a step
+        waits for the load of the node before it, while a leaf's triangles lie
+        next to each other: against leaf size 4 (one thread, camera, incoherent
+        and shadow rays, closest and any hit, medians of 5-9 interleaved rounds,
+        2026-11-27), 12 traced the full dragon 1.13-1.23 times as fast (85.2 ->
+        59.9 bytes a triangle), dragon-203k 1.16-1.26, dragon-48k 1.07-1.33, the
+        bunny 1.08-1.35, the armadillo 1.16-1.27, and the forests level
+        (forest-small-chair 0.96-1.04, forest-large-chair 0.96-1.09); 8 and 16
+        fell between or below (full dragon 16: 0.89-1.00 of 12). Raising
+        ``traversal_cost`` to 2 or 3 instead gained less (0.83-0.92 of 12).
+        The lecture's trees (``rayaccel experiment kdtree-table``) keep 2.
     max_depth : int, optional
         Depth limit; default ``round(8 + 1.3 log2 n)`` (pbrt's rule).
     bins : int, default 64
@@ -178,7 +184,7 @@ class KdTree(Accelerator):
     method = "kdtree"
     build_bytes_per_primitive = 1200
 
-    def __init__(self, scene, *, traversal_cost=1.0, intersection_cost=1.33, empty_bonus=0.2, leaf_size=4,
+    def __init__(self, scene, *, traversal_cost=1.0, intersection_cost=1.33, empty_bonus=0.2, leaf_size=12,
                  max_depth=None, bins=64, exact_below=4096, threads=None, packets=True):
         n = len(scene)
         if n > _MAX_PRIMS:
@@ -208,13 +214,13 @@ class KdTree(Accelerator):
         and the tree's depth, which sizes the walks' stacks. Triangles are float32 rows, 36 bytes
         a reference, when the mesh is exact in float32 and the structure then stays within
         :data:`ROWS_BYTES_PER_TRIANGLE`, else indexed: rows spare a leaf's test the dependent
-        load of its vertices. On the full dragon (1.75 references a triangle, 8-byte nodes),
-        85.2 bytes a triangle instead of 55.3, and incoherent rays 1.10-1.12 / 1.12-1.18 times
-        as fast (closest / any hit), shadow rays 0.99-1.06, camera rays 0.96-1.09 (one thread,
-        separate processes, two runs each, medians of 5 rounds, 2026-11-27). Where the tree
-        fits the caches they gain nothing: a float32 copy of forest-small-chair, incoherent rays
-        0.92-1.07; dragon-48k, 0.95-1.07 for 202.6 bytes a triangle instead of 114.4, over the
-        limit."""
+        load of its vertices. On the full dragon (leaf size 4 then, 1.75 references a
+        triangle), 85.2 bytes a triangle instead of 55.3 (59.9 with the leaves of 12 since),
+        and incoherent rays 1.10-1.12 / 1.12-1.18 times as fast (closest / any hit), shadow
+        rays 0.99-1.06, camera rays 0.96-1.09 (one thread, separate processes, two runs each,
+        medians of 5 rounds, 2026-11-27). Where the tree fits the caches they gain nothing: a
+        float32 copy of forest-small-chair, incoherent rays 0.92-1.07; dragon-48k, 0.95-1.07
+        for 202.6 bytes a triangle instead of 114.4, over the limit."""
         self.geometry = self.scene.gather(self.kd.leaf_prims, indexed=not self._rows_fit())
         self.max_depth = _tree_depth(self.kd)
 
