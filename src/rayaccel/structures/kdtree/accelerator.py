@@ -28,8 +28,7 @@ from .traverse_packet import PACKET, PACKET_ROWS, kdtree_packet_kernel
 __all__ = ["KdTree", "ROWS_BYTES_PER_TRIANGLE"]
 
 _MAX_PRIMS = 1 << 28  # leaf counts are stored as count << 2 in an int32
-ROW_BYTES = 36
-"""Bytes of one float32 row: a triangle's three corners."""
+_ROW_BYTES = 9 * 4  # a float32 row: a triangle's three corners
 ROWS_BYTES_PER_TRIANGLE = 90.0
 """The most bytes a triangle the kd-tree spends to keep its triangles as float32 rows, under the
 91.9 that Embree's BVH holds on the full dragon (measured here): the budget of every layout."""
@@ -278,7 +277,7 @@ class KdTree(Accelerator):
         if scene.kind != TRIANGLE or not scene.float32_exact:
             return False
         k = self.kd
-        rows_bytes = k.nbytes + len(k.leaf_prims) * ROW_BYTES
+        rows_bytes = k.nbytes + len(k.leaf_prims) * _ROW_BYTES
         return rows_bytes <= ROWS_BYTES_PER_TRIANGLE * len(scene)
 
     def node_cells(self) -> np.ndarray:
