@@ -99,7 +99,7 @@ def _without_literals(signature):
     the plain specialization, into which a literal converts. First use on an empty cache (one
     process each, CPU time, five runs each, 2026-11-27): the kd-tree's first build (bunny)
     26.9 -> 21.8 s in the median (131 -> 125 specializations; single runs 23.7-28.2 against
-    19.2-27.0 s), the default one level (7.5-9.3 s against 7.8-8.8, three runs)."""
+    19.2-27.0 s), the default build level (7.5-9.3 s against 7.8-8.8, three runs)."""
     args, return_type = sigutils.normalize_signature(signature)
     plain = tuple(types.unliteral(arg) for arg in args)
     return plain if return_type is None else return_type(*plain)
