@@ -233,39 +233,37 @@ def visit_prim_in_mode(mode, action, row, kind, geom, k, prim, ray, t_min, best_
 
 
 def _cross_prim_in_mode(mode, action, row, kind, geom, k, prim, ray, t_min, best_t, best_prim, best_u, best_v):
-    """The crossing modes' part of :func:`visit_prim_in_mode` (counting, winding, lists). An
-    overload inlined when Numba types it, not a function inlined at its IR level: a walk whose
-    constant mode prunes the call before typing then never copies this code, which inlined
-    at the IR level was copied into every closest-hit walk before the pruning (the first
-    ``intersect`` of ``bvh-binned`` on an empty cache: 8.5 -> 5.4-6.3 s of CPU, two runs). A
-    plain kernel called per primitive would compile less still, but counted and listed at
-    0.39-0.58 of the speed of the inlined code."""
+    """The crossing modes' part of :func:`visit_prim_in_mode` (counting, winding, lists). Its
+    own overload, inlined when Numba types it, not a function inlined at its IR level: a walk
+    whose constant mode prunes the call before typing then never copies this code, which
+    inlined at the IR level was copied into every closest-hit walk before the pruning (the
+    first ``intersect`` of ``bvh-binned`` on an empty cache: 8.5 -> 5.4-6.3 s of CPU, two
+    runs). A plain kernel called per primitive would compile less still, but counted and
+    listed at 0.39-0.58 of the speed of the inlined code."""
+    n, t_first, t_second, u, v, side = cross_prim(kind, geom, k, ray, t_min, best_t)
+    if n == 0:
+        return best_t, best_prim, best_u, best_v, False
+    if mode == COUNT:
+        action.count[row] += n
+        return best_t, best_prim, best_u, best_v, False
+    if mode == WINDING:
+        half_turns = side if t_first == 0.0 else 2 * side
+        action.count[row] += half_turns
+        return best_t, best_prim, best_u, best_v, False
+    full = _insert(action, row, t_first, prim, u, v)
+    if n == 2:
+        full = _insert(action, row, t_second, prim, u, v)
+    if full:
+        first, capacity, stride = _slots(action, row)
+        last = first + (capacity - 1) * stride
+        return action.t[last], action.prim[last], best_u, best_v, False
+    return best_t, best_prim, best_u, best_v, False
 
 
 @overload(_cross_prim_in_mode, inline="always")
 def _cross_prim_in_mode_overload(mode, action, row, kind, geom, k, prim, ray, t_min, best_t, best_prim, best_u,
                                  best_v):
-    def cross_prim_in_mode(mode, action, row, kind, geom, k, prim, ray, t_min, best_t, best_prim, best_u, best_v):
-        n, t_first, t_second, u, v, side = cross_prim(kind, geom, k, ray, t_min, best_t)
-        if n == 0:
-            return best_t, best_prim, best_u, best_v, False
-        if mode == COUNT:
-            action.count[row] += n
-            return best_t, best_prim, best_u, best_v, False
-        if mode == WINDING:
-            half_turns = side if t_first == 0.0 else 2 * side
-            action.count[row] += half_turns
-            return best_t, best_prim, best_u, best_v, False
-        full = _insert(action, row, t_first, prim, u, v)
-        if n == 2:
-            full = _insert(action, row, t_second, prim, u, v)
-        if full:
-            first, capacity, stride = _slots(action, row)
-            last = first + (capacity - 1) * stride
-            return action.t[last], action.prim[last], best_u, best_v, False
-        return best_t, best_prim, best_u, best_v, False
-
-    return cross_prim_in_mode
+    return _cross_prim_in_mode
 
 
 @inline_kernel

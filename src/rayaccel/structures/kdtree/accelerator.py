@@ -148,9 +148,11 @@ class KdTree(Accelerator):
         and shadow rays, closest and any hit, medians of 5-9 interleaved rounds,
         2026-11-27), 12 traced the full dragon 1.13-1.23 times as fast (85.2 ->
         59.9 bytes a triangle), dragon-203k 1.16-1.26, dragon-48k 1.07-1.33, the
-        bunny 1.08-1.35, the armadillo 1.16-1.27, and the forests level
-        (forest-small-chair 0.96-1.04, forest-large-chair 0.96-1.09); 8 and 16
-        fell between or below (full dragon 16: 0.89-1.00 of 12). Raising
+        bunny 1.08-1.35, the armadillo 1.16-1.27, and the forests about level
+        (forest-small-chair 0.96-1.04 in two runs, 0.89-1.02 in a first one on a
+        slower minute; forest-large-chair 0.96-1.09); a first dragon-48k run, in
+        which leaf size 4 traced at a third of its usual speed, gave 0.89-1.18. 8
+        and 16 fell between or below (full dragon 16: 0.89-1.00 of 12). Raising
         ``traversal_cost`` to 2 or 3 instead gained less (0.83-0.92 of 12).
         The lecture's trees (``rayaccel experiment kdtree-table``) keep 2.
     max_depth : int, optional
