@@ -1,5 +1,6 @@
-"""The eight-wide BVH walk with several rays in flight per thread gives each ray the answer brute
-force gives it, and the same work counters as the walk of one ray at a time."""
+"""The walks with several rays in flight per thread (the eight-wide BVH's and the kd-tree's) give
+each ray the answer brute force gives it, and the same work counters as the walks of one ray at a
+time."""
 
 from __future__ import annotations
 
@@ -19,12 +20,15 @@ from rayaccel.ray_order import interleaving_pays, second_level_cache_bytes
 from rayaccel.rays import prepare_rays
 from rayaccel.structures.bvh import accelerator
 from rayaccel.structures.bvh.traverse_interleaved import SLOTS
+from rayaccel.structures.kdtree import accelerator as kdtree_accelerator
+from rayaccel.structures.kdtree.traverse_interleaved import SLOTS as KDTREE_SLOTS
 
 
 @pytest.fixture
 def every_batch_interleaved(monkeypatch):
-    """Small trees and every kind of batch take the interleaved walk."""
-    monkeypatch.setattr(accelerator, "interleaving_pays", lambda batch, lo, hi, nbytes, sampled: True)
+    """Small trees and every kind of batch take the interleaved walks."""
+    for module in (accelerator, kdtree_accelerator):
+        monkeypatch.setattr(module, "interleaving_pays", lambda batch, lo, hi, nbytes, sampled: True)
 
 
 def brute_interleaved_single(scene, method="bvh-binned"):
@@ -40,7 +44,7 @@ def with_own_intervals(origins, seed=5):
 
 
 @pytest.mark.parametrize("rays", ["random", "vertices_and_edges", "axis_parallel", "camera"])
-@pytest.mark.parametrize("method", ["bvh-binned", "bvh-sah"])
+@pytest.mark.parametrize("method", ["bvh-binned", "bvh-sah", "kdtree"])
 def test_interleaved_walk_matches_brute_force(small_dragon, every_batch_interleaved, rays, method):
     """Rays in every direction (many starting outside the tree's box, many missing it), aimed
     exactly at vertices and edges, along the axes with zero components of either sign, and a
@@ -62,35 +66,40 @@ def test_interleaved_walk_matches_brute_force(small_dragon, every_batch_interlea
             np.testing.assert_array_equal(getattr(walked, name), getattr(alone, name), err_msg=name)
 
 
-@pytest.mark.parametrize("n", [1, 2, SLOTS - 1, SLOTS, SLOTS + 1, 3 * SLOTS + 5])
-def test_batches_with_fewer_rays_than_slots(small_dragon, every_batch_interleaved, n):
+@pytest.mark.parametrize("n", sorted({1, 2, 3 * SLOTS + 5} | {SLOTS + k for k in (-1, 0, 1)}
+                                      | {KDTREE_SLOTS + k for k in (-1, 0, 1)}))
+@pytest.mark.parametrize("method", ["bvh-binned", "kdtree"])
+def test_batches_with_fewer_rays_than_slots(small_dragon, every_batch_interleaved, n, method):
     """Batches that leave slots free from the start or free them one by one at the end,
     with rays that miss the tree's box among them."""
     origins, directions = random_rays(small_dragon, n, seed=n)
     origins[::3] = small_dragon.bounds().scene_hi + 1.0
     directions[::3] = [1.0, 0.5, 0.25]
-    brute, interleaved, _ = brute_interleaved_single(small_dragon)
+    brute, interleaved, _ = brute_interleaved_single(small_dragon, method)
     reference = brute.intersect(origins, directions)
     assert_same_hits(reference, interleaved.intersect(origins, directions))
     np.testing.assert_array_equal(interleaved.occluded(origins, directions), reference.hit)
 
 
-def test_interleaved_spheres_match_brute_force(spheres, every_batch_interleaved):
+@pytest.mark.parametrize("method", ["bvh-binned", "kdtree"])
+def test_interleaved_spheres_match_brute_force(spheres, every_batch_interleaved, method):
     """Closest and any hit on spheres (the walk's steps do not depend on the primitive kind; counting
     and listing through it are tested on the mesh, which spares compiling their kernel for spheres)."""
     origins, directions = random_rays(spheres, 2000, seed=4)
     t_min, t_max = with_own_intervals(origins)
-    brute, interleaved, _ = brute_interleaved_single(spheres)
+    brute, interleaved, _ = brute_interleaved_single(spheres, method)
     reference = brute.intersect(origins, directions, t_min, t_max)
     assert_same_hits(reference, interleaved.intersect(origins, directions, t_min, t_max))
     np.testing.assert_array_equal(interleaved.occluded(origins, directions, t_min, t_max), reference.hit)
 
 
-def test_interleaved_count_list_and_contains(small_dragon, every_batch_interleaved):
+@pytest.mark.parametrize("method", ["bvh-binned", "kdtree"])
+def test_interleaved_count_list_and_contains(small_dragon, every_batch_interleaved, method):
     """Counting, listing (all hits and the nearest few) and the inside test, whose ray per point
-    counts signed crossings, through the interleaved walk."""
+    counts signed crossings, through the interleaved walk (the kd-tree's counts one ray at a time:
+    its rays in flight would share the thread's mailbox row)."""
     origins, directions = random_rays(small_dragon, 1500, seed=9)
-    brute, interleaved, single = brute_interleaved_single(small_dragon)
+    brute, interleaved, single = brute_interleaved_single(small_dragon, method)
     assert_counts_and_lists_match(brute, interleaved, origins, directions)
     points = origins[:500]
     np.testing.assert_array_equal(interleaved.contains(points), single.contains(points))
@@ -115,7 +124,8 @@ def test_which_batches_are_interleaved(small_dragon):
     assert interleaving_pays(prepare_rays(np.zeros((5000, 3)), around), b.scene_lo, b.scene_hi, big)
 
 
-def test_interleave_option(small_dragon):
-    assert ra.build(small_dragon, "bvh-binned").options["interleave"] is True
+@pytest.mark.parametrize("method", ["bvh-binned", "kdtree"])
+def test_interleave_option(small_dragon, method):
+    assert ra.build(small_dragon, method).options["interleave"] is True
     with pytest.raises(TypeError, match="interleave"):
-        ra.build(small_dragon, "bvh-binned", interleave=1)
+        ra.build(small_dragon, method, interleave=1)

@@ -297,9 +297,10 @@ def thread_rows(shape, dtype=np.float64) -> np.ndarray:
 
 @intrinsic
 def prefetch(typingctx, array, row, column):
-    """Ask the CPU to start loading the cache line of ``array[row, column]`` (a 2-D array)
-    without waiting for it (LLVM's ``llvm.prefetch``, read, high locality): for memory a
-    traversal will read a few steps later, such as the nodes it pushes on its stack."""
+    """Ask the CPU to start loading the cache line of ``array[row, column]`` (a 2-D array; of
+    ``array[row]`` for a 1-D one, ``column`` unused) without waiting for it (LLVM's
+    ``llvm.prefetch``, read, high locality): for memory a traversal will read a few steps
+    later, such as the nodes it pushes on its stack."""
     signature = types.void(array, row, column)
 
     def codegen(context, builder, sig, args):
@@ -307,7 +308,8 @@ def prefetch(typingctx, array, row, column):
         view = context.make_array(array_type)(context, builder, args[0])
         row_index = context.cast(builder, args[1], sig.args[1], types.intp)
         column_index = context.cast(builder, args[2], sig.args[2], types.intp)
-        pointer = cgutils.get_item_pointer(context, builder, array_type, view, [row_index, column_index])
+        pointer = cgutils.get_item_pointer(context, builder, array_type, view,
+                                           [row_index, column_index][:array_type.ndim])
         byte_pointer = builder.bitcast(pointer, ir.IntType(8).as_pointer())
         int32 = ir.IntType(32)
         function_type = ir.FunctionType(ir.VoidType(), [byte_pointer.type, int32, int32, int32])

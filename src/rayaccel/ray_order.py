@@ -213,8 +213,9 @@ def lane_packets_pay(batch: RayBatch, scene_lo, scene_hi, sampled: Neighbours | 
 
 def interleaving_pays(batch: RayBatch, scene_lo, scene_hi, structure_bytes: int,
                       sampled: Neighbours | None = None) -> bool:
-    """Whether the eight-wide BVH walk should keep several rays in flight per thread
-    (:mod:`.structures.bvh.traverse_interleaved`): a structure of more than four times a
+    """Whether a walk should keep several rays in flight per thread (the eight-wide BVH's,
+    :mod:`.structures.bvh.traverse_interleaved`, and the kd-tree's,
+    :mod:`.structures.kdtree.traverse_interleaved`): a structure of more than four times a
     core's second-level cache, and a batch whose neighbouring rays start apart (more than
     ``1/64`` of the scene's size, for half of them or more) or head apart (by more than
     :data:`_ALIKE_ANGLE` radians), so that they do not share the nodes they wait for. Camera

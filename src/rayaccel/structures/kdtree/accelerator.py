@@ -13,7 +13,7 @@ from ..._jit import kernel, thread_count, thread_rows
 from ..._validate import check_flag, check_number
 from ...geometry.gather import layout_nbytes
 from ...geometry.kinds import TRIANGLE
-from ...ray_order import MIN_PACKET_RAYS, lane_packets_pay, packets_pay, sample_neighbours
+from ...ray_order import MIN_PACKET_RAYS, interleaving_pays, lane_packets_pay, packets_pay, sample_neighbours
 from ...stats import box_area, surface_area_stats
 from ..actions import NEAREST
 from ..base import Accelerator, walk_rays
@@ -23,6 +23,7 @@ from .build_sah_events import build_subtrees
 from .layout import LEAF, MAX_NODES, KdTreeArrays, node_cells
 from .nearest import kdtree_nearest_kernel
 from .traverse import RAY_ROW, kdtree_closest_kernel, kdtree_crossings_kernel
+from .traverse_interleaved import SLOT_FLOATS, SLOT_INTS, SLOTS, interleaved_closest_kernel
 from .traverse_packet import PACKET, PACKET_ROWS, kdtree_packet_kernel
 
 __all__ = ["KdTree", "ROWS_BYTES_PER_TRIANGLE"]
@@ -180,13 +181,20 @@ class KdTree(Accelerator):
         from their hits to one light) in packets of eight consecutive rays that
         walk the tree together (:mod:`rayaccel.structures.kdtree.traverse_packet`).
         ``False`` walks every ray on its own. The answers are the same either way.
+    interleave : bool, default True
+        Trace an incoherent batch through a tree larger than the caches
+        (:func:`rayaccel.ray_order.interleaving_pays`) with several rays in
+        flight per thread, each ray's wait for its next node overlapping the
+        others' steps (:mod:`rayaccel.structures.kdtree.traverse_interleaved`;
+        closest and any hit; the counting and collecting queries walk one ray
+        at a time). ``False`` walks one ray at a time. Same answers either way.
     """
 
     method = "kdtree"
     build_bytes_per_primitive = 1200
 
     def __init__(self, scene, *, traversal_cost=1.0, intersection_cost=1.33, empty_bonus=0.2, leaf_size=12,
-                 max_depth=None, bins=64, exact_below=4096, threads=None, packets=True):
+                 max_depth=None, bins=64, exact_below=4096, threads=None, packets=True, interleave=True):
         n = len(scene)
         if n > _MAX_PRIMS:
             raise ValueError(f"the kd-tree holds at most {_MAX_PRIMS:,} primitives, got {n:,}")
@@ -203,7 +211,8 @@ class KdTree(Accelerator):
         }
         threads = thread_count() if threads is None else check_number("threads", threads, integer=True, minimum=1,
                                                                        inclusive=True)
-        super().__init__(scene, {**options, "packets": check_flag("packets", packets)})
+        super().__init__(scene, {**options, "packets": check_flag("packets", packets),
+                                 "interleave": check_flag("interleave", interleave)})
         start = time.perf_counter()
         self.kd = self._build(scene, threads, **options)
         self.build_seconds = time.perf_counter() - start
@@ -291,27 +300,44 @@ class KdTree(Accelerator):
     def _trace(self, batch, any_hit, action, work):
         k = self.kd
         rows = numba.config.NUMBA_NUM_THREADS
-        stack_node = thread_rows((rows, self.max_depth + 2), np.int32)
-        stack_t = thread_rows((rows, self.max_depth + 2, 2))
-        tree = (k.lo, k.hi, *k.walk_records, k.leaf_prims, self.scene.kind, self.geometry)
-        with self._mailboxes_for(action).lend(len(batch.origins)) as (mailbox, base):
-            if action.mode == NEAREST and work.shape[0] == 0 and self._packets_pay(batch):
-                walk_rays(kdtree_packet_kernel, len(batch.origins), *tree, *batch, any_hit, mailbox, base, stack_node,
-                          stack_t, thread_rows((rows, RAY_ROW)), thread_rows((rows, self.max_depth + 2), np.int64),
+        n_rays = len(batch.origins)
+        walk = self._nearest_walk(batch, work) if action.mode == NEAREST else kdtree_crossings_kernel
+        with self._mailboxes_for(action).lend(n_rays) as (mailbox, base):
+            rays = (k.lo, k.hi, *k.walk_records, k.leaf_prims, self.scene.kind, self.geometry, *batch, any_hit,
+                    mailbox, base)
+            if walk is kdtree_packet_kernel:
+                walk_rays(walk, n_rays, *rays, *self._stacks(rows), thread_rows((rows, RAY_ROW)),
+                          thread_rows((rows, self.max_depth + 2), np.int64),
                           thread_rows((rows, self.max_depth + 2, 2 * PACKET)),
                           thread_rows((rows, PACKET_ROWS * PACKET)), thread_rows((rows, PACKET), np.int64), action,
                           work)
-                return
-            walk = kdtree_closest_kernel if action.mode == NEAREST else kdtree_crossings_kernel
-            walk_rays(walk, len(batch.origins), *tree, *batch, any_hit, mailbox, base, stack_node, stack_t,
-                      thread_rows((rows, RAY_ROW)), action, work)
+            elif walk is interleaved_closest_kernel:
+                walk_rays(walk, n_rays, *rays, *self._stacks(rows * SLOTS), SLOTS,
+                          thread_rows((rows, SLOTS, SLOT_INTS), np.int64), thread_rows((rows, SLOTS, SLOT_FLOATS)),
+                          action, work)
+            else:
+                walk_rays(walk, n_rays, *rays, *self._stacks(rows), thread_rows((rows, RAY_ROW)), action, work)
 
-    def _packets_pay(self, batch) -> bool:
-        """Whether to trace ``batch`` in packets (the ``packets`` option, on a coherent batch)."""
-        if not self.options.get("packets", True) or len(batch.origins) < MIN_PACKET_RAYS:
-            return False
-        sampled = sample_neighbours(batch, *self.scene_box)
-        return packets_pay(batch, *self.scene_box, sampled) or lane_packets_pay(batch, *self.scene_box, sampled)
+    def _stacks(self, rows: int) -> tuple[np.ndarray, np.ndarray]:
+        """``rows`` stacks as deep as the tree: the pending cells' nodes and their intervals."""
+        depth = self.max_depth + 2
+        return thread_rows((rows, depth), np.int32), thread_rows((rows, depth, 2))
+
+    def _nearest_walk(self, batch, work):
+        """The closest-hit and any-hit walk for ``batch``: packets for a coherent batch (the
+        ``packets`` option; :func:`rayaccel.ray_order.packets_pay` or
+        :func:`rayaccel.ray_order.lane_packets_pay`: a camera's rays, shadow rays from their hits
+        to one light) when no counters are asked for, several rays in flight per thread for an
+        incoherent batch through a tree larger than the caches (the ``interleave`` option;
+        :func:`rayaccel.ray_order.interleaving_pays`), else one ray at a time."""
+        sampled = None
+        if work.shape[0] == 0 and self.options.get("packets", True) and len(batch.origins) >= MIN_PACKET_RAYS:
+            sampled = sample_neighbours(batch, *self.scene_box)
+            if packets_pay(batch, *self.scene_box, sampled) or lane_packets_pay(batch, *self.scene_box, sampled):
+                return kdtree_packet_kernel
+        if self.options.get("interleave", True) and interleaving_pays(batch, *self.scene_box, self.nbytes, sampled):
+            return interleaved_closest_kernel
+        return kdtree_closest_kernel
 
     def _nearest(self, points, limit_d2, out_d2, out_prim):
         """Near side of each plane first (:mod:`.nearest`)."""

@@ -36,7 +36,7 @@ from ..actions import NEAREST, finish_ray_in_mode, intersect_references
 from ..base import EXIT_MARGIN, settled_before
 from .layout import LEAF, PLANE_FLOOR, PLANE_STEP, leaf_first, node_plane, node_word
 
-__all__ = ["RAY_ROW", "kdtree_closest_kernel", "kdtree_crossings_kernel", "walk_singly"]
+__all__ = ["RAY_ROW", "kdtree_closest_kernel", "kdtree_crossings_kernel", "walk_singly", "cross_split", "pop_unsettled"]
 
 RAY_ROW = 6
 """Width of a walk's per-thread ``inv_dir`` row: the ray's reciprocal direction and its plane steps."""
@@ -48,7 +48,7 @@ def _margin(t):
 
 
 @inline_kernel
-def _cross_split(node_planes, word, node, oa, inv_a, step_a, t0, t1):
+def cross_split(node_planes, word, node, oa, inv_a, step_a, t0, t1):
     """One step at inner ``node`` (its record's second word ``word``) of a ray with origin ``oa``,
     reciprocal direction ``inv_a`` and ``step_a = PLANE_STEP |inv_a|`` on the node's axis, inside
     ``[t0, t1]``: ``(next, t1, pushed, push_t0, push_t1)``, the child to visit next with the end
@@ -85,7 +85,7 @@ def _cross_split(node_planes, word, node, oa, inv_a, step_a, t0, t1):
 
 
 @inline_kernel
-def _pop_unsettled(stack_node, stack_t, row, sp, best_prim, best_t, t0, t1):
+def pop_unsettled(stack_node, stack_t, row, sp, best_prim, best_t, t0, t1):
     """The next cell to visit from the stack of ``row`` (``sp`` entries), skipping those that start
     after the best hit: ``(node, t0, t1, sp)``, ``node = -1`` when none is left. Once the best hit
     lies before a leaf's exit, every cell pushed by a plane crossing starts after it; only a cell
@@ -107,7 +107,7 @@ def walk_singly(ray_first, ray_end, tid, lo, hi, node_planes, node_links, leaf_p
     ``mailbox`` as in the uniform grid (empty for the closest hit, which needs none). A step
     reads the ray on the node's axis from memory (``inv_dir`` (threads, :data:`RAY_ROW`) holds
     the ray's reciprocal direction, then ``PLANE_STEP`` times its magnitude, see
-    :func:`_cross_split`): taken from a tuple by a varying index, the reciprocal was computed
+    :func:`cross_split`): taken from a tuple by a varying index, the reciprocal was computed
     again, a division per step, which took 7 % of the walk's samples (full dragon, incoherent
     rays, one thread)."""
     count_work = work.shape[0] > 0
@@ -139,7 +139,7 @@ def walk_singly(ray_first, ray_end, tid, lo, hi, node_planes, node_links, leaf_p
             word = node_word(node_links, node)
             axis = word & 3
             if axis != LEAF:
-                node, t1, pushed, push_t0, push_t1 = _cross_split(node_planes, word, node, origins[i, axis],
+                node, t1, pushed, push_t0, push_t1 = cross_split(node_planes, word, node, origins[i, axis],
                                                                   inv_dir[row_of_thread, axis],
                                                                   inv_dir[row_of_thread, 3 + axis], t0, t1)
                 slot = unsigned(sp)
@@ -155,7 +155,7 @@ def walk_singly(ray_first, ray_end, tid, lo, hi, node_planes, node_links, leaf_p
                 geom, True, ray, ray_t_min, best_t, best_prim, best_u, best_v, n_tests, 0, any_hit)
             if any_hit and best_prim >= 0:
                 break
-            node, t0, t1, sp = _pop_unsettled(stack_node, stack_t, tid, sp, best_prim, best_t, t0, t1)
+            node, t0, t1, sp = pop_unsettled(stack_node, stack_t, tid, sp, best_prim, best_t, t0, t1)
         finish_ray_in_mode(mode, action, row, best_t, best_prim, best_u, best_v)
         if count_work:
             work[row, 0] = n_nodes

@@ -109,7 +109,7 @@ def _split_lanes(typingctx, state, axis, plane, slot_t):
     (a stack slot: the eight ``t0``, then the eight ``t1``), and each lane keeps the near part
     as its current interval in ``state``. Returns the lanes that reach the near side in bits
     0-7 and those that reach the far side in bits 8-15: the single walk's choice
-    (:func:`.traverse._cross_split`) with its arithmetic, lane by lane."""
+    (:func:`.traverse.cross_split`) with its arithmetic, lane by lane."""
     signature = types.int64(state, axis, plane, slot_t)
 
     def codegen(context, builder, sig, args):
