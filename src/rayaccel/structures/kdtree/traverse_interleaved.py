@@ -55,9 +55,9 @@ best hit."""
 
 
 @inline_kernel
-def _finish(mode, action, work, row, best_t, best_prim, best_u, best_v, n_nodes, n_tests, n_leaves):
+def _finish(action, work, row, best_t, best_prim, best_u, best_v, n_nodes, n_tests, n_leaves):
     """Write a ray's answer, and its counters when the walk counts."""
-    finish_ray_in_mode(mode, action, row, best_t, best_prim, best_u, best_v)
+    finish_ray_in_mode(NEAREST, action, row, best_t, best_prim, best_u, best_v)
     if work.shape[0] > 0:
         work[row, 0] = n_nodes
         work[row, 1] = n_tests
@@ -65,8 +65,8 @@ def _finish(mode, action, work, row, best_t, best_prim, best_u, best_v, n_nodes,
 
 
 @inline_kernel
-def _take_ray(slot, next_ray, ray_end, ints, floats, lo, hi, origins, directions, t_min, t_max, hit_slot, mode,
-              action, work):
+def _take_ray(slot, next_ray, ray_end, ints, floats, lo, hi, origins, directions, t_min, t_max, hit_slot, action,
+              work):
     """Put the next ray of the chunk that meets the root cell into free ``slot``, at the root,
     finishing the rays before it as misses; returns the index after it. The slot stays free
     (ray -1) when the chunk has no ray left."""
@@ -78,7 +78,7 @@ def _take_ray(slot, next_ray, ray_end, ints, floats, lo, hi, origins, directions
         ray_t_max = ray_limit(t_max, i)
         t0, t1 = clip_to_box(lo, hi, ox, oy, oz, dx, dy, dz, ray_limit(t_min, i), ray_t_max)
         if t0 > t1:
-            _finish(mode, action, work, result_row(hit_slot, i), np.inf, -1, 0.0, 0.0, 0, 0, 0)
+            _finish(action, work, result_row(hit_slot, i), np.inf, -1, 0.0, 0.0, 0, 0, 0)
             continue
         store_ray(ray_setup(ox, oy, oz, dx, dy, dz), floats, ints, slot)
         for axis in range(3):
@@ -100,15 +100,18 @@ def _take_ray(slot, next_ray, ray_end, ints, floats, lo, hi, origins, directions
     return next_ray
 
 
-@inline_kernel
-def _walk(ray_first, ray_end, tid, lo, hi, node_planes, node_links, leaf_prims, kind, geom, origins, directions,
-          t_min, t_max, hit_slot, any_hit, mailbox, ray_id_base, stack_node, stack_t, slots, slot_ints, slot_floats,
-          mode, action, work):
-    """Trace rays ``ray_first`` to ``ray_end - 1``, ``slots`` at a time, their states in row
-    ``tid`` of ``slot_ints`` (threads, slots, :data:`SLOT_INTS`) and ``slot_floats`` (threads,
-    slots, :data:`SLOT_FLOATS`) and their stacks in rows ``tid * slots`` to ``tid * slots +
-    slots - 1`` of ``stack_node`` and ``stack_t``. The other arguments, and the counters, are
-    those of :func:`.traverse.walk_singly`."""
+@chunk_kernel
+def interleaved_closest_kernel(ray_first, ray_end, tid, lo, hi, node_planes, node_links, leaf_prims, kind, geom,
+                               origins, directions, t_min, t_max, hit_slot, any_hit, mailbox, ray_id_base, stack_node,
+                               stack_t, slots, slot_ints, slot_floats, action, work):
+    """Trace rays ``ray_first`` to ``ray_end - 1`` for the closest or any hit (an action of mode
+    ``NEAREST``), ``slots`` at a time, their states in row ``tid`` of ``slot_ints`` (threads,
+    slots, :data:`SLOT_INTS`) and ``slot_floats`` (threads, slots, :data:`SLOT_FLOATS`) and their
+    stacks in rows ``tid * slots`` to ``tid * slots + slots - 1`` of ``stack_node`` and
+    ``stack_t``. The other arguments, and the counters, are those of
+    :func:`.traverse.walk_singly`. Only these queries: the counting and collecting actions stamp
+    each primitive a ray meets in the thread's mailbox row, which the rays in flight would share
+    (``mailbox`` is empty here)."""
     ints = slot_ints[tid]
     floats = slot_floats[tid]
     next_ray = ray_first
@@ -123,7 +126,7 @@ def _walk(ray_first, ray_end, tid, lo, hi, node_planes, node_links, leaf_prims, 
                 if next_ray == ray_end:
                     continue
                 next_ray = _take_ray(slot, next_ray, ray_end, ints, floats, lo, hi, origins, directions, t_min, t_max,
-                                     hit_slot, mode, action, work)
+                                     hit_slot, action, work)
                 i = ints[slot, _RAY]
                 if i < 0:
                     continue
@@ -151,7 +154,7 @@ def _walk(ray_first, ray_end, tid, lo, hi, node_planes, node_links, leaf_prims, 
             ints[slot, _NODES] += 1
             ints[slot, _LEAVES] += 1
             best_t, best_prim, best_u, best_v, tests, _ = intersect_references(
-                mode, action, result_row(hit_slot, i), first, first + (word >> 2), leaf_prims, mailbox, tid,
+                NEAREST, action, result_row(hit_slot, i), first, first + (word >> 2), leaf_prims, mailbox, tid,
                 ray_id_base + i, kind, geom, True, load_ray(floats, ints, slot), ray_limit(t_min, i),
                 floats[slot, _BEST_T], ints[slot, _PRIM], floats[slot, _BEST_U], floats[slot, _BEST_V], 0, 0,
                 any_hit)
@@ -170,20 +173,7 @@ def _walk(ray_first, ray_end, tid, lo, hi, node_planes, node_links, leaf_prims, 
                 floats[slot, _T0] = t0
                 floats[slot, _T1] = t1
                 continue
-            _finish(mode, action, work, result_row(hit_slot, i), best_t, best_prim, best_u, best_v,
+            _finish(action, work, result_row(hit_slot, i), best_t, best_prim, best_u, best_v,
                     ints[slot, _NODES], ints[slot, _TESTS], ints[slot, _LEAVES])
             ints[slot, _RAY] = -1
-
-
-@chunk_kernel
-def interleaved_closest_kernel(ray_first, ray_end, tid, lo, hi, node_planes, node_links, leaf_prims, kind, geom,
-                               origins, directions, t_min, t_max, hit_slot, any_hit, mailbox, ray_id_base, stack_node,
-                               stack_t, slots, slot_ints, slot_floats, action, work):
-    """The closest-hit and any-hit walk (an action of mode ``NEAREST``), the other modes' code
-    pruned before it is compiled. Only these: the counting and collecting actions stamp each
-    primitive a ray meets in the thread's mailbox row, which the rays in flight would share
-    (``mailbox`` is empty here)."""
-    _walk(ray_first, ray_end, tid, lo, hi, node_planes, node_links, leaf_prims, kind, geom, origins, directions, t_min,
-          t_max, hit_slot, any_hit, mailbox, ray_id_base, stack_node, stack_t, slots, slot_ints, slot_floats, NEAREST,
-          action, work)
 
