@@ -88,7 +88,7 @@ def test_the_eight_wide_bvh_traces_rays_as_given(small_dragon, incoherent_batch,
 
 
 def test_structures_within_half_the_cache_trace_rays_as_given(small_dragon, incoherent_batch, monkeypatch):
-    accel = ra.build(small_dragon, "kdtree")
+    accel = ra.build(small_dragon, "kdtree", interleave=False)
     batch = prepare_rays(*incoherent_batch)
     size = accel.stats()["bytes"]
     monkeypatch.setattr(ray_order, "last_level_cache_bytes", lambda: 2 * size)
@@ -97,6 +97,15 @@ def test_structures_within_half_the_cache_trace_rays_as_given(small_dragon, inco
     assert not np.array_equal(accel._ordered(batch, True).hit_slot, batch.hit_slot)
     assert accel._ordered(batch, False) is batch
     assert not sorting_pays(MIN_RAYS - 1, 2 * size)
+
+
+def test_kdtree_keeping_rays_in_flight_traces_them_as_given(small_dragon, incoherent_batch, monkeypatch):
+    """Rays in flight per thread hide the waits that sorting would: the kd-tree sorts a large
+    incoherent batch only with ``interleave=False``."""
+    monkeypatch.setattr(ray_order, "last_level_cache_bytes", lambda: 1024)
+    batch = prepare_rays(*incoherent_batch)
+    assert ra.build(small_dragon, "kdtree")._ordered(batch, True) is batch
+    assert ra.build(small_dragon, "kdtree", interleave=False)._ordered(batch, True) is not batch
 
 
 def test_cache_sizes_are_read():

@@ -318,6 +318,15 @@ class KdTree(Accelerator):
             else:
                 walk_rays(walk, n_rays, *rays, *self._stacks(rows), thread_rows((rows, RAY_ROW)), action, work)
 
+    @property
+    def _walk_gains_from_sorting(self) -> bool:
+        """Sorting an incoherent batch (:mod:`rayaccel.ray_order`) and keeping rays in flight hide
+        the same waits, and the interleaved walk does better with the rays as given: full dragon,
+        2**20 incoherent rays, two threads, closest / any hit, 3.16 / 3.34 Mrays/s as given
+        against 2.88 / 2.97 sorted, and 2.71 / 2.78 and 2.77 / 2.86 for the single walk
+        (medians of 7 interleaved rounds). So the rays are sorted only without ``interleave``."""
+        return not self.options.get("interleave", True)
+
     def _stacks(self, rows: int) -> tuple[np.ndarray, np.ndarray]:
         """``rows`` stacks as deep as the tree: the pending cells' nodes and their intervals."""
         depth = self.max_depth + 2

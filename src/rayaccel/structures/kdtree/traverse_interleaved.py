@@ -12,12 +12,12 @@ crossings, the stack and the leaf visits are those of :mod:`.traverse`, so
 every ray gets the same answer and the same counters.
 
 Measured against :mod:`.traverse` (``interleave=False``), 2**18 incoherent
-rays, medians of 9-11 interleaved rounds, closest / any hit: on one core (CPU
+rays, medians of 9-15 interleaved rounds, closest / any hit: on one core (CPU
 time), the full dragon (52 MB of records and float32 rows) 1.44 / 1.26, 1.18 /
-1.19 and 1.05 / 1.13 in three runs, on two (wall time) 1.09 / 1.11;
-dragon-203k (11 MB) 1.22 / 1.28, the armadillo (5.7 MB) 1.22 / 1.17, and
-where the tree stays in the caches it gains nothing: the bunny (4.0 MB) 0.96 /
-1.00, forest-small-chair (2.4 MB) 0.87-0.99 in two runs. Hence the rule of the
+1.19 and 1.05 / 1.13 in three runs, on two (wall time) 1.09 / 1.11 and 1.06 /
+1.04 in two; dragon-203k (11 MB) 1.22 / 1.28, the armadillo (5.7 MB) 1.22 /
+1.17; where the tree stays in the caches it gains nothing: the bunny (4.0 MB)
+0.96 / 1.00, forest-small-chair (2.4 MB) 0.87-0.99 in two runs. Hence the rule of the
 BVH's walk, :func:`rayaccel.ray_order.interleaving_pays`. Twelve slots: on the
 full dragon's closest hit 4, 8 and 12 gave 1.22, 1.41 and 1.44 in one run, 16
 gave 1.00 where 12 gave 1.05 in another; a variant that prefetched a leaf's
