@@ -20,7 +20,7 @@ from rayaccel.ray_order import MIN_PACKET_RAYS, lane_packets_pay, packets_pay
 from rayaccel.rays import prepare_rays
 from rayaccel.structures.kdtree import accelerator
 from rayaccel.structures.kdtree.layout import PLANE_STEP, plane_bracket
-from rayaccel.structures.kdtree.traverse import _cross_split
+from rayaccel.structures.kdtree.traverse import cross_split
 from rayaccel.structures.kdtree.traverse_packet import PACKET, PACKET_ROWS, _split_lanes
 
 
@@ -135,7 +135,7 @@ def _split_by_lane_and_alone(state, axis, node_records, slot, alone):
     for r in range(PACKET):
         o, inv = state[axis * PACKET + r], state[(3 + axis) * PACKET + r]
         t0, t1 = state[6 * PACKET + r], state[7 * PACKET + r]
-        nxt, near_t1, pushed, push_t0, push_t1 = _cross_split(planes, words[1], 0, o, inv,
+        nxt, near_t1, pushed, push_t0, push_t1 = cross_split(planes, words[1], 0, o, inv,
                                                               PLANE_STEP * abs(inv), t0, t1)
         alone[r, 0], alone[r, 1], alone[r, 2], alone[r, 3], alone[r, 4] = nxt, near_t1, pushed, push_t0, push_t1
     return _split_lanes(state, axis, np.float64(planes[0]), slot)
@@ -143,7 +143,7 @@ def _split_by_lane_and_alone(state, axis, node_records, slot, alone):
 
 def test_vector_split_is_the_single_walks_split_in_each_lane():
     """:func:`_split_lanes` makes, lane by lane, the single walk's choice
-    (:func:`.traverse._cross_split`) to the bit: which sides each lane reaches and its
+    (:func:`.traverse.cross_split`) to the bit: which sides each lane reaches and its
     intervals there, for planes before, inside, after and at the ends of the lanes' intervals (the
     ray leaving or entering the plane's bracket right there)."""
     rng = np.random.default_rng(11)
