@@ -65,7 +65,7 @@ from ..rays import result_row
 
 __all__ = ["NEAREST", "COUNT", "LIST", "WINDING", "Action", "nearest_hit", "hit_flags", "hit_count", "hit_list",
            "hit_slots", "signed_crossings", "is_closer", "store_hit", "visit_prim", "visit_prim_in_mode", "finish_ray",
-           "finish_ray_in_mode", "intersect_references"]
+           "finish_ray_in_mode", "finish_walked_ray", "intersect_references"]
 
 NEAREST = 0
 COUNT = 1
@@ -294,6 +294,17 @@ def finish_ray_in_mode(mode, action, row, best_t, best_prim, best_u, best_v):
             action.t[row] = t
             action.u[row] = u
             action.v[row] = v
+
+
+@inline_kernel
+def finish_walked_ray(mode, action, work, row, best_t, best_prim, best_u, best_v, n_nodes, n_tests, n_leaves):
+    """:func:`finish_ray_in_mode`, then the ray's work counters (nodes, tests, leaves) when the walk
+    counts (``work`` not empty), for a walk that keeps them apart from its answer."""
+    finish_ray_in_mode(mode, action, row, best_t, best_prim, best_u, best_v)
+    if work.shape[0] > 0:
+        work[row, 0] = n_nodes
+        work[row, 1] = n_tests
+        work[row, 3] = n_leaves
 
 
 @inline_kernel

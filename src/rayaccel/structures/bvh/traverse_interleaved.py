@@ -47,7 +47,7 @@ from ..._jit import chunk_kernel, inline_kernel, unsigned
 from ..._validate import unusable_rays
 from ...geometry.primitive import RAY_FLOATS, RAY_INTS, load_ray, ray_setup, store_ray
 from ...rays import ray_at, ray_limit, result_row
-from ..actions import COUNT, NEAREST, finish_misses_in_mode, finish_ray_in_mode
+from ..actions import COUNT, NEAREST, finish_misses_in_mode, finish_walked_ray
 from .traverse import enter_box
 from .traverse_wide import push_child, visit_leaf
 from .wide import child_count, child_link
@@ -70,16 +70,6 @@ SLOT_FLOATS = RAY_FLOATS + 6
 
 
 @inline_kernel
-def _finish(mode, action, work, row, best_t, best_prim, best_u, best_v, n_nodes, n_tests, n_leaves):
-    """Write a ray's answer, and its counters when the walk counts."""
-    finish_ray_in_mode(mode, action, row, best_t, best_prim, best_u, best_v)
-    if work.shape[0] > 0:
-        work[row, 0] = n_nodes
-        work[row, 1] = n_tests
-        work[row, 3] = n_leaves
-
-
-@inline_kernel
 def _take_ray(slot, next_ray, ray_end, ints, floats, root_box, origins, directions, t_min, t_max, hit_slot, mode,
               action, work):
     """Put the next ray of the chunk that enters the whole tree's box into free ``slot``, at the
@@ -96,7 +86,7 @@ def _take_ray(slot, next_ray, ray_end, ints, floats, root_box, origins, directio
         ray_t_max = ray_limit(t_max, i)
         if enter_box(root_box, 0, ox, oy, oz, ix, iy, iz, near_x, near_y, near_z, ray_limit(t_min, i),
                      ray_t_max) == np.inf:
-            _finish(mode, action, work, result_row(hit_slot, i), ray_t_max, -1, 0.0, 0.0, 0, 0, 0)
+            finish_walked_ray(mode, action, work, result_row(hit_slot, i), ray_t_max, -1, 0.0, 0.0, 0, 0, 0)
             continue
         store_ray(ray_setup(ox, oy, oz, dx, dy, dz), floats, ints, slot)
         ints[slot, _RAY] = i
@@ -202,8 +192,9 @@ def _walk(ray_first, ray_end, tid, root_box, records, links, prim_order, kind, g
                 ints[slot, _LINK] = link
                 ints[slot, _COUNT] = count
                 continue
-            _finish(mode, action, work, result_row(hit_slot, i), best_t, ints[slot, _PRIM], floats[slot, _BEST_U],
-                    floats[slot, _BEST_V], ints[slot, _NODES], ints[slot, _TESTS], ints[slot, _LEAVES])
+            finish_walked_ray(mode, action, work, result_row(hit_slot, i), best_t, ints[slot, _PRIM],
+                              floats[slot, _BEST_U], floats[slot, _BEST_V], ints[slot, _NODES], ints[slot, _TESTS],
+                              ints[slot, _LEAVES])
             ints[slot, _RAY] = -1
     return 0
 

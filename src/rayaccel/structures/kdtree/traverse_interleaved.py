@@ -33,7 +33,7 @@ from ..._jit import chunk_kernel, inline_kernel, prefetch, unsigned
 from ...geometry.box import clip_to_box
 from ...geometry.primitive import RAY_FLOATS, RAY_INTS, load_ray, ray_setup, store_ray
 from ...rays import ray_limit, result_row
-from ..actions import NEAREST, finish_ray_in_mode, intersect_references
+from ..actions import NEAREST, finish_walked_ray, intersect_references
 from .layout import LEAF, PLANE_STEP, leaf_first, node_word
 from .traverse import cross_split, pop_unsettled
 
@@ -55,16 +55,6 @@ best hit."""
 
 
 @inline_kernel
-def _finish(action, work, row, best_t, best_prim, best_u, best_v, n_nodes, n_tests, n_leaves):
-    """Write a ray's answer, and its counters when the walk counts."""
-    finish_ray_in_mode(NEAREST, action, row, best_t, best_prim, best_u, best_v)
-    if work.shape[0] > 0:
-        work[row, 0] = n_nodes
-        work[row, 1] = n_tests
-        work[row, 3] = n_leaves
-
-
-@inline_kernel
 def _take_ray(slot, next_ray, ray_end, ints, floats, lo, hi, origins, directions, t_min, t_max, hit_slot, action,
               work):
     """Put the next ray of the chunk that meets the root cell into free ``slot``, at the root,
@@ -78,7 +68,7 @@ def _take_ray(slot, next_ray, ray_end, ints, floats, lo, hi, origins, directions
         ray_t_max = ray_limit(t_max, i)
         t0, t1 = clip_to_box(lo, hi, ox, oy, oz, dx, dy, dz, ray_limit(t_min, i), ray_t_max)
         if t0 > t1:
-            _finish(action, work, result_row(hit_slot, i), np.inf, -1, 0.0, 0.0, 0, 0, 0)
+            finish_walked_ray(NEAREST, action, work, result_row(hit_slot, i), np.inf, -1, 0.0, 0.0, 0, 0, 0)
             continue
         store_ray(ray_setup(ox, oy, oz, dx, dy, dz), floats, ints, slot)
         for axis in range(3):
@@ -173,7 +163,7 @@ def interleaved_closest_kernel(ray_first, ray_end, tid, lo, hi, node_planes, nod
                 floats[slot, _T0] = t0
                 floats[slot, _T1] = t1
                 continue
-            _finish(action, work, result_row(hit_slot, i), best_t, best_prim, best_u, best_v,
-                    ints[slot, _NODES], ints[slot, _TESTS], ints[slot, _LEAVES])
+            finish_walked_ray(NEAREST, action, work, result_row(hit_slot, i), best_t, best_prim, best_u, best_v,
+                              ints[slot, _NODES], ints[slot, _TESTS], ints[slot, _LEAVES])
             ints[slot, _RAY] = -1
 
