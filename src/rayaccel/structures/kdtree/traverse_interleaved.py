@@ -11,25 +11,30 @@ next turn the other rays' steps have given the load time to arrive. The plane
 crossings, the stack and the leaf visits are those of :mod:`.traverse`, so
 every ray gets the same answer and the same counters.
 
-Measured against :mod:`.traverse` (``interleave=False``), 2**18 incoherent
-rays, medians of 9-15 interleaved rounds, closest / any hit: on one core (CPU
-time), the full dragon (52 MB of records and float32 rows) 1.44 / 1.26, 1.18 /
-1.19 and 1.05 / 1.13 in three runs, on two (wall time) 1.09 / 1.11 and 1.06 /
-1.04 in two; dragon-203k (11 MB) 1.22 / 1.28, the armadillo (5.7 MB) 1.22 /
-1.17; where the tree stays in the caches it gains nothing: the bunny (4.0 MB)
-0.96 / 1.00, forest-small-chair (2.4 MB) 0.87-0.99 in two runs. Hence the rule of the
-BVH's walk, :func:`rayaccel.ray_order.interleaving_pays`. Twelve slots: on the
-full dragon's closest hit 4, 8 and 12 gave 1.22, 1.41 and 1.44 in one run, 16
-gave 1.00 where 12 gave 1.05 in another; a variant that prefetched a leaf's
-first primitive and tested the leaf at the ray's next turn measured the same
-as testing it at once, within the noise (0.83-1.10 of it over three runs).
-A ray goes on within its turn for no more than one node: stepping on while the
-next record lay in the same 64-byte line (68 % of the children below a plane
-and 47 % above it, full dragon) traced 2.51 / 2.68 Mrays/s against 3.31 / 3.52
-(two threads, 2**20 rays as given), level with one ray at a time (2.49 /
-2.74). The work counters are kept in the slots only when a query asks for
-them: kept always, two threads ran at 0.92-0.94 / 0.92-0.99 of the speed in
-two runs, one thread at 1.01 / 1.03.
+Measured against :mod:`.traverse` (``interleave=False``), incoherent rays,
+medians of 7-15 interleaved rounds, closest / any hit:
+
+* full dragon (52 MB of records and float32 rows), 2**18 rays sorted: one core
+  (CPU time) 1.44 / 1.26, 1.18 / 1.19 and 1.05 / 1.13 in three runs, two
+  (wall time) 1.09 / 1.11 and 1.06 / 1.04; 2**20 rays as given, two cores,
+  1.33 / 1.28 (which is how this walk takes them: see
+  :attr:`.accelerator.KdTree._walk_gains_from_sorting`);
+* dragon-203k (11 MB) 1.22 / 1.28, the armadillo (5.7 MB) 1.22 / 1.17, one core;
+* where the tree stays in the caches it gains nothing: the bunny (4.0 MB) 0.96
+  / 1.00, forest-small-chair (2.4 MB) 0.87-0.99 in two runs. Hence the rule of
+  the BVH's walk, :func:`rayaccel.ray_order.interleaving_pays`.
+
+Twelve slots: on the full dragon's closest hit 4, 8 and 12 gave 1.22, 1.41 and
+1.44 in one run, 16 gave 1.00 where 12 gave 1.05 in another. A variant that
+prefetched a leaf's first primitive and tested the leaf at the ray's next turn
+measured the same as testing it at once, within the noise (0.83-1.10 of it
+over three runs). A ray goes on within its turn for no more than one node:
+stepping on while the next record lay in the same 64-byte line (68 % of the
+children below a plane and 47 % above it, full dragon) traced 2.51 / 2.68
+Mrays/s against 3.31 / 3.52 (two threads, 2**20 rays as given), level with one
+ray at a time (2.49 / 2.74). The work counters are kept in the slots only when
+a query asks for them: kept always, two threads ran at 0.92-0.94 / 0.92-0.99
+of the speed in two runs, one thread at 1.01 / 1.03.
 """
 
 from __future__ import annotations
