@@ -34,7 +34,7 @@ from ..._validate import unusable_ray
 from ...geometry.gather import prefetch_prim
 from ...geometry.primitive import ray_setup
 from ...rays import ray_at, ray_limit, result_row
-from ..actions import COUNT, NEAREST, finish_ray_in_mode, intersect_references, visit_prim_in_mode
+from ..actions import COUNT, NEAREST, finish_ray_in_mode, finish_walked_ray, intersect_references, visit_prim_in_mode
 from .traverse import enter_box
 from .wide import child_count, child_link
 from .wide_slab import enter_children, highest_bit
@@ -177,7 +177,6 @@ def _walk(ray_first, ray_end, tid, root_box, records, links, prim_order, kind, g
     wide nodes and leaves visited (a leaf counts as a node too), primitive tests. A ray that
     :func:`rayaccel._validate.unusable_ray` refuses is left unwalked, answered as a miss;
     returns how many there were."""
-    count_work = work.shape[0] > 0
     child_entry = entry[tid]
     unusable = 0
     for i in range(ray_first, ray_end):
@@ -206,11 +205,7 @@ def _walk(ray_first, ray_end, tid, root_box, records, links, prim_order, kind, g
             mode, action, row, records, links, prim_order, kind, geom, None, tid, 0, 0, origin, inv_dir, near_x,
             near_y, near_z, ray, ray_t_min, ray_t_min, np.inf, best_t, best_prim, best_u, best_v, any_hit, stack_link,
             stack_count, stack_t, child_entry)
-        finish_ray_in_mode(mode, action, row, best_t, best_prim, best_u, best_v)
-        if count_work:
-            work[row, 0] = n_nodes
-            work[row, 1] = n_tests
-            work[row, 3] = n_leaves
+        finish_walked_ray(mode, action, work, row, best_t, best_prim, best_u, best_v, n_nodes, n_tests, n_leaves)
     return unusable
 
 

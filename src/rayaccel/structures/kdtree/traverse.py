@@ -32,7 +32,7 @@ from ..._jit import chunk_kernel, inline_kernel, unsigned
 from ...geometry.box import clip_to_box
 from ...geometry.primitive import ray_setup
 from ...rays import ray_limit, result_row
-from ..actions import NEAREST, finish_ray_in_mode, intersect_references
+from ..actions import NEAREST, finish_ray_in_mode, finish_walked_ray, intersect_references
 from ..base import EXIT_MARGIN, settled_before
 from .layout import LEAF, PLANE_FLOOR, PLANE_STEP, leaf_first, node_plane, node_word
 
@@ -110,7 +110,6 @@ def walk_singly(ray_first, ray_end, tid, lo, hi, node_planes, node_links, leaf_p
     :func:`cross_split`): taken from a tuple by a varying index, the reciprocal was computed
     again, a division per step, which took 7 % of the walk's samples (full dragon, incoherent
     rays, one thread)."""
-    count_work = work.shape[0] > 0
     row_of_thread = unsigned(tid)
     for i in range(ray_first, ray_end):
         row = result_row(hit_slot, i)
@@ -156,11 +155,7 @@ def walk_singly(ray_first, ray_end, tid, lo, hi, node_planes, node_links, leaf_p
             if any_hit and best_prim >= 0:
                 break
             node, t0, t1, sp = pop_unsettled(stack_node, stack_t, tid, sp, best_prim, best_t, t0, t1)
-        finish_ray_in_mode(mode, action, row, best_t, best_prim, best_u, best_v)
-        if count_work:
-            work[row, 0] = n_nodes
-            work[row, 1] = n_tests
-            work[row, 3] = n_leaves
+        finish_walked_ray(mode, action, work, row, best_t, best_prim, best_u, best_v, n_nodes, n_tests, n_leaves)
 
 
 @chunk_kernel

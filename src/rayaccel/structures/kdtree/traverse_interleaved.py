@@ -12,7 +12,7 @@ crossings, the stack and the leaf visits are those of :mod:`.traverse`, so
 every ray gets the same answer and the same counters.
 
 Measured against :mod:`.traverse` (``interleave=False``), incoherent rays,
-medians of 7-15 interleaved rounds, closest / any hit:
+medians of 5-15 interleaved rounds, closest / any hit:
 
 * full dragon (52 MB of records and float32 rows), 2**18 rays sorted: one core
   (CPU time) 1.44 / 1.26, 1.18 / 1.19 and 1.05 / 1.13 in three runs, two
