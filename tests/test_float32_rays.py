@@ -57,7 +57,7 @@ def test_float32_rays_walk_as_they_are_and_hit_what_their_float64_copy_hits(smal
     brute force confirms."""
     origins, directions = rays_of(small_dragon, batch)
     if batch == "random interleaved":
-        monkeypatch.setattr(accelerator, "interleaving_pays", lambda batch, lo, hi, nbytes, sampled: True)
+        monkeypatch.setattr(accelerator, "interleaving_pays", lambda batch, lo, hi, nbytes, sampled, **_: True)
     seen = []
     walk_rays = accelerator.walk_rays
     monkeypatch.setattr(accelerator, "walk_rays", lambda walk, n, *args: seen.append((walk.__name__, args)) or
@@ -149,7 +149,7 @@ def test_generated_scenes_and_float32_rays_match_their_float64_copy(data, walk):
     wide, brute = ra.build(mesh, "bvh-binned"), ra.build(mesh, "none")
     with ExitStack() as stack:
         for name, value in FORCED_WALKS[walk].items():
-            stack.enter_context(patch.object(accelerator, name, lambda *args, value=value: value))
+            stack.enter_context(patch.object(accelerator, name, lambda *args, value=value, **_: value))
         hits = wide.intersect(origins32, directions32)
         reference = wide.intersect(origins64, directions64)
         occluded = wide.occluded(origins32, directions32)

@@ -28,7 +28,7 @@ from rayaccel.structures.kdtree.traverse_interleaved import SLOTS as KDTREE_SLOT
 def every_batch_interleaved(monkeypatch):
     """Small trees and every kind of batch take the interleaved walks."""
     for module in (accelerator, kdtree_accelerator):
-        monkeypatch.setattr(module, "interleaving_pays", lambda batch, lo, hi, nbytes, sampled: True)
+        monkeypatch.setattr(module, "interleaving_pays", lambda batch, lo, hi, nbytes, sampled, **_: True)
 
 
 def brute_interleaved_single(scene, method="bvh-binned"):
@@ -106,7 +106,8 @@ def test_interleaved_count_list_and_contains(small_dragon, every_batch_interleav
 
 
 def test_which_batches_are_interleaved(small_dragon):
-    """Incoherent rays through a tree beyond four second-level caches are interleaved; the same
+    """Incoherent rays through a tree beyond four second-level caches (or as many as the caller
+    asks) are interleaved; the same
     rays through a tree that fits, and camera and shadow rays whose neighbours start close and
     head alike, are not. Rays from one point in every direction are."""
     b = small_dragon.bounds()
@@ -114,6 +115,8 @@ def test_which_batches_are_interleaved(small_dragon):
     incoherent = prepare_rays(*random_rays(small_dragon, 5000))
     assert interleaving_pays(incoherent, b.scene_lo, b.scene_hi, big)
     assert not interleaving_pays(incoherent, b.scene_lo, b.scene_hi, small)
+    assert not interleaving_pays(incoherent, b.scene_lo, b.scene_hi, big, caches=5)
+    assert interleaving_pays(incoherent, b.scene_lo, b.scene_hi, 6 * second_level_cache_bytes(), caches=5)
     origins, directions = camera_rays(small_dragon, 256)
     assert not interleaving_pays(prepare_rays(origins, directions), b.scene_lo, b.scene_hi, big)
     hits = ra.build(small_dragon, "bvh-binned").intersect(origins, directions)

@@ -213,7 +213,7 @@ def test_walks_that_check_their_rays_refuse_unusable_ones(small_dragon, monkeypa
     if batch == "random":
         origins, directions = origins[:MIN_PACKET_RAYS - 1], directions[:MIN_PACKET_RAYS - 1]
     if batch == "random interleaved":
-        monkeypatch.setattr(accelerator, "interleaving_pays", lambda batch, lo, hi, nbytes, sampled: True)
+        monkeypatch.setattr(accelerator, "interleaving_pays", lambda batch, lo, hi, nbytes, sampled, **_: True)
     walks = []
     walk_rays = accelerator.walk_rays
     monkeypatch.setattr(accelerator, "walk_rays", lambda walk, *args: walks.append(walk.__name__) or

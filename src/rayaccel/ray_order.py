@@ -68,7 +68,6 @@ _ALIKE_ANGLE = 0.1
 
 _DEFAULT_CACHE_BYTES = 32 << 20
 _DEFAULT_L2_BYTES = 1 << 20
-_INTERLEAVE_CACHES = 4
 _BITS_PER_AXIS = 2
 _NEARBY = 1.0 / 64.0
 _SAMPLE = 1024
@@ -215,15 +214,15 @@ def lane_packets_pay(batch: RayBatch, scene_lo, scene_hi, sampled: Neighbours | 
 
 
 def interleaving_pays(batch: RayBatch, scene_lo, scene_hi, structure_bytes: int,
-                      sampled: Neighbours | None = None) -> bool:
+                      sampled: Neighbours | None = None, *, caches: int = 4) -> bool:
     """Whether a walk should keep several rays in flight per thread (the eight-wide BVH's,
     :mod:`.structures.bvh.traverse_interleaved`, and the kd-tree's,
-    :mod:`.structures.kdtree.traverse_interleaved`): a structure of more than four times a
-    core's second-level cache, and a batch whose neighbouring rays start apart (more than
+    :mod:`.structures.kdtree.traverse_interleaved`): a structure of more than ``caches`` times
+    a core's second-level cache, and a batch whose neighbouring rays start apart (more than
     ``1/64`` of the scene's size, for half of them or more) or head apart (by more than
     :data:`_ALIKE_ANGLE` radians), so that they do not share the nodes they wait for. Camera
     rays and shadow rays from their hits to one light keep the walk of one ray at a time."""
-    if structure_bytes <= _INTERLEAVE_CACHES * second_level_cache_bytes() or len(batch.origins) < 2:
+    if structure_bytes <= caches * second_level_cache_bytes() or len(batch.origins) < 2:
         return False
     sampled = sampled or sample_neighbours(batch, scene_lo, scene_hi)
     return not (sampled.start_together(_NEARBY) and sampled.head_alike(_ALIKE_ANGLE))

@@ -58,6 +58,15 @@ _LANE_PACKET_WALKS = {NEAREST: lane_packet_kernel}
 _INTERLEAVED_WALKS = {NEAREST: interleaved_nearest_kernel, COUNT: interleaved_count_kernel}
 _WIDE_WALKS = {NEAREST: wide_nearest_kernel, COUNT: wide_count_kernel}
 
+# The eight-wide BVH keeps rays in flight only in a tree beyond this many second-level caches (the
+# kd-tree, whose every step waits for the one before, beyond four). Against one ray at a time, two
+# threads, 2^20 incoherent rays, closest / any hit, on a 1 MiB second level (2026-11-28):
+# forest-small-chair in float32 rows (4.1 MiB) 0.79 / 0.77; armadillo (5.5 MiB) 0.92 / 0.91 and
+# 0.83 / 0.87; dragon-203k's first 100,000, 140,000 and 170,000 triangles (6.6, 9.9 and 12.1 MiB)
+# 0.95 / 0.97, 0.92 / 0.98 and 0.94 / 0.98; the whole of dragon-203k (14.5 MiB) 1.15 / 1.18 and
+# 1.11 / 1.05; the full dragon (61 MiB) 1.35 / 1.40 (README, "Benchmarks").
+_INTERLEAVE_CACHES = 13
+
 # Node volumes are grown by this fraction of the scene's size (coordinates
 # included): the slab test's rounding, about 1e-16 of the coordinates, can then
 # never cull a node that a ray only touches, such as one at a vertex it aims at.
@@ -276,7 +285,8 @@ class BoundingVolumeHierarchy(Accelerator):
             return walk_rays(walk, len(batch.origins), *tree, *batch, any_hit, *self._wide_stacks(rows),
                              thread_rows((rows, WIDTH)), thread_rows((rows, LANE_ROWS * PACKET)),
                              thread_rows((rows, BOUND_VALUES)), thread_rows((rows, PACKET), np.int64), action)
-        if self.options.get("interleave", True) and interleaving_pays(batch, *self.scene_box, self.nbytes, sampled):
+        if self.options.get("interleave", True) and interleaving_pays(batch, *self.scene_box, self.nbytes, sampled,
+                                                                       caches=_INTERLEAVE_CACHES):
             walk = _INTERLEAVED_WALKS.get(action.mode, interleaved_crossings_kernel)
             return walk_rays(walk, len(batch.origins), self.root_record, *tree, *batch, any_hit,
                              *self._wide_stacks(rows * SLOTS), thread_rows((rows, WIDTH)), SLOTS,
