@@ -336,13 +336,14 @@ def intersect_references(mode, action, row, first, end, refs, mailbox, tid, stam
     """Visit the primitives ``refs[first:end]`` (a cell's or a leaf's references) with the
     action, in ``mode`` (the action's own, or a constant that prunes the others' code, see
     :func:`visit_prim_in_mode`), skipping those already stamped in the mailbox, when there is
-    one (an empty array otherwise), and stamping the others. With ``in_leaf_order`` the
+    one (an empty array or ``None`` otherwise; ``None`` leaves the mailbox test out of the
+    compiled code), and stamping the others. With ``in_leaf_order`` the
     geometry is stored in reference order (row ``k`` is primitive ``refs[k]``), otherwise it
     is the scene's, row ``refs[k]``. Returns the walk's ``(best_t, best_prim, best_u,
     best_v)`` and the counters ``(tests, skips)``, updated."""
     for k in range(first, end):
         prim = refs[k]
-        if mailbox.shape[0] > 0:
+        if mailbox is not None and mailbox.shape[0] > 0:
             if mailbox[tid, prim] == stamp:
                 n_skips += 1
                 continue

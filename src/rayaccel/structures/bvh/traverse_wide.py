@@ -94,17 +94,19 @@ def walk_tree(mode, action, row, records, links, prim_order, kind, geom, mailbox
     """Walk one ray (from ``t_min`` on) through the wide tree rooted at ``root``, its stack in row
     ``tid``, entering boxes within ``[span_lo, min(best_t, span_hi)]`` and giving each primitive of
     a leaf it reaches the action: through :func:`..actions.intersect_references`, which skips
-    those already stamped ``stamp`` in ``mailbox``, or, when ``mailbox`` is empty or ``None``,
-    through :func:`visit_leaf`, which has no mailbox test (taking the mailbox path without a
-    mailbox cost the BVH's walk 0.82-0.98 of its speed). ``None``, as the BVH's own walks pass,
-    prunes the mailbox path before Numba types it: the first ``intersect`` on an empty cache
-    took 8.5 s of CPU instead of 10.5 (bunny, 2026-11-27). ``origin``, ``inv_dir`` and ``near_*`` as
-    for :func:`.wide_slab.enter_children`, ``ray`` the primitive test's set-up, ``child_entry``
-    this thread's row of children's entry distances. Returns the walk's ``(best_t, best_prim,
-    best_u, best_v)`` and its counters ``(nodes, leaves, tests, skips)``; a leaf counts as a node
-    too. The single entered inner child is descended into by its own test before the push
-    loop: folded into the loop's test of the last child, the walk ran at 0.81 (dragon camera
-    rays, closest hit) and 0.83 (forest camera rays, any hit) of this one's speed on one thread."""
+    those already stamped ``stamp`` in ``mailbox`` (when it is not empty), or, when ``mailbox`` is
+    ``None``, through :func:`visit_leaf`, which has no mailbox test (taking the mailbox path
+    without a mailbox cost the BVH's walk 0.82-0.98 of its speed). The mailbox's type chooses,
+    before Numba types the walk, so that only one of the two is compiled: the BVH's own walks
+    pass ``None`` (the first ``intersect`` on an empty cache took 8.5 s of CPU instead of 10.5,
+    bunny, 2026-11-27), the grid-BVH's walks ``None`` or a mailbox (see :mod:`..hybrid.traverse`).
+    ``origin``, ``inv_dir`` and ``near_*`` as for :func:`.wide_slab.enter_children`, ``ray`` the
+    primitive test's set-up, ``child_entry`` this thread's row of children's entry distances.
+    Returns the walk's ``(best_t, best_prim, best_u, best_v)`` and its counters ``(nodes, leaves,
+    tests, skips)``; a leaf counts as a node too. The single entered inner child is descended
+    into by its own test before the push loop: folded into the loop's test of the last child,
+    the walk ran at 0.81 (dragon camera rays, closest hit) and 0.83 (forest camera rays, any
+    hit) of this one's speed on one thread."""
     nearest_first = not any_hit and mode == NEAREST
     stack_row = unsigned(tid)
     n_nodes = 0
@@ -151,7 +153,7 @@ def walk_tree(mode, action, row, records, links, prim_order, kind, geom, mailbox
             n_nodes += 1
             n_leaves += 1
             first = stack_link[stack_row, top]
-            if mailbox is None or mailbox.shape[0] == 0:
+            if mailbox is None:
                 best_t, best_prim, best_u, best_v, tests = visit_leaf(mode, action, row, kind, geom, prim_order, first,
                                                                       count, ray, t_min, best_t, best_prim, best_u,
                                                                       best_v, any_hit)

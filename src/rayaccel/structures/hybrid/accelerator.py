@@ -104,7 +104,7 @@ class GridBvh(Accelerator):
             walk = grid_bvh_nearest_kernel if action.mode == NEAREST else grid_bvh_crossings_kernel
             return walk_rays(walk, len(batch.origins), h.lo, h.hi, h.res, h.cell_size, h.cell_first, h.cell_prims,
                              self.wide_root, self.wide, self.wide.view(np.int32), self.scene.kind, self.geometry,
-                             *batch, any_hit, mailbox, base, *stacks, action, work)
+                             *batch, any_hit, mailbox if len(mailbox) else None, base, *stacks, action, work)
 
     @property
     def _walk_checks_rays(self) -> bool:

@@ -7,6 +7,9 @@ cell's references are reached through the eight-wide stack walk of
 ``bvh-binned`` (:func:`..bvh.traverse_wide.walk_tree`) over the cell's tree,
 its child boxes entered only on the ray's stretch through the cell; the
 mailbox, if any, still skips primitives that an earlier cell already tested.
+A walk without one is given ``None``, not an empty mailbox, so that each
+kernel compiles two copies of the primitive visit (a cell's references and a
+tree's leaf) instead of three (:func:`..bvh.traverse_wide.walk_tree`).
 Stacks are per thread. As the eight-wide BVH's walk, it tests each ray as it
 reads it and reads float32 rays as they are.
 """
@@ -35,7 +38,7 @@ def _walk(ray_first, ray_end, tid, lo, hi, res, cell_size, cell_first, cell_prim
     """Trace rays ``ray_first`` to ``ray_end - 1`` (one chunk of :func:`rayaccel._jit.on_threads`), their
     stacks in row ``tid``; ``cell_root`` is each cell's wide root (-1 without a BVH) in ``records``
     (:mod:`..bvh.wide`, ``links`` the same seen as int32), whose leaves index ``cell_prims``;
-    ``mailbox`` as in the uniform grid (empty for none); stacks as the eight-wide BVH's. A ray that
+    ``mailbox`` as in the uniform grid, or ``None`` for none; stacks as the eight-wide BVH's. A ray that
     :func:`rayaccel._validate.unusable_ray` refuses is answered as a miss; returns how many
     there were."""
     nx, ny, nz = res[0], res[1], res[2]
