@@ -107,9 +107,9 @@ def test_interleaved_count_list_and_contains(small_dragon, every_batch_interleav
 
 def test_which_batches_are_interleaved(small_dragon):
     """Incoherent rays through a tree beyond four second-level caches (or as many as the caller
-    asks) are interleaved; the same
-    rays through a tree that fits, and camera and shadow rays whose neighbours start close and
-    head alike, are not. Rays from one point in every direction are."""
+    asks) are interleaved; the same rays through a tree that fits, and camera and shadow rays
+    whose neighbours start close and head alike, are not. Rays from one point in every
+    direction are."""
     b = small_dragon.bounds()
     big, small = 5 * second_level_cache_bytes(), second_level_cache_bytes()
     incoherent = prepare_rays(*random_rays(small_dragon, 5000))
