@@ -64,7 +64,7 @@ _WIDE_WALKS = {NEAREST: wide_nearest_kernel, COUNT: wide_count_kernel}
 # forest-small-chair in float32 rows (4.1 MiB) 0.79 / 0.77; armadillo (5.5 MiB) 0.92 / 0.91 and
 # 0.83 / 0.87; dragon-203k's first 100,000, 140,000 and 170,000 triangles (6.6, 9.9 and 12.1 MiB)
 # 0.95 / 0.97, 0.92 / 0.98 and 0.94 / 0.98; the whole of dragon-203k (14.5 MiB) 1.15 / 1.18 and
-# 1.11 / 1.05; the full dragon (61 MiB) 1.35 / 1.40 (README, "Benchmarks").
+# 1.11 / 1.05; the full dragon (58 MiB) 1.35 / 1.40 (README, "Library").
 _INTERLEAVE_CACHES = 13
 
 # Node volumes are grown by this fraction of the scene's size (coordinates
