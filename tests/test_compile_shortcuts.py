@@ -1,0 +1,147 @@
+"""rayaccel's kernels compile under three shortcuts through Numba (``rayaccel._jit._compile_shortcuts``):
+the scopes of inlined functions shared by their IR copies, rayaccel's always-inlined overloads typed once
+per argument types, and copy propagation's sets of names copied flat. Each gives what Numba gives without
+it, and nothing else compiled in the process sees them."""
+
+from __future__ import annotations
+
+import collections
+import copy
+
+import numba
+import numpy as np
+import pytest
+from numba.core import compiler, ir, ir_utils, types
+from numba.core.registry import cpu_target
+from numba.core.typing import templates
+from numba.extending import overload
+
+import rayaccel as ra
+from rayaccel import _jit
+from rayaccel._jit import (
+    _FlatCopiesOfNameSets,
+    _inline_overloads_typed_once,
+    _name_sets_copied_flat,
+    _scopes_shared_by_copies,
+)
+from rayaccel._validate import _unusable_rays, unusable_rays
+
+
+def test_scopes_are_shared_only_inside_the_context():
+    scope = ir.Scope(None, ir.Loc("test", 1))
+    assert copy.deepcopy(scope) is not scope
+    with _scopes_shared_by_copies():
+        assert copy.deepcopy(scope) is scope
+    assert copy.deepcopy(scope) is not scope
+    assert "__deepcopy__" not in vars(ir.Scope)
+
+
+def test_a_users_inlined_function_compiles_as_before_after_rayaccel_compiled(bunny):
+    generic = vars(templates._OverloadFunctionTemplate)["generic"]
+    ra.build(bunny, "bvh-binned").intersect(np.zeros((4, 3)), np.ones((4, 3)))
+    assert "__deepcopy__" not in vars(ir.Scope)
+    assert vars(templates._OverloadFunctionTemplate)["generic"] is generic
+    assert ir_utils.copy is copy
+
+    @numba.njit(inline="always")
+    def shifted(x, shift):
+        if shift > 0:
+            return x + shift
+        return x - shift
+
+    @numba.njit
+    def both(x):
+        return shifted(x, 1) * shifted(x, -2)
+
+    assert both(3) == 20
+
+
+def _users_half(x):
+    """A user's overload inlined at every call, in this test module."""
+
+
+@overload(_users_half, inline="always")
+def _users_half_overload(x):
+    return lambda x: x / 2
+
+
+@pytest.fixture
+def typings(monkeypatch):
+    """The overloads whose calls Numba's own typing typed, in turn; rayaccel's memory of the
+    signatures it gave starts empty."""
+    calls = []
+    generic = templates._OverloadFunctionTemplate.generic
+
+    def counted(self, args, kws):
+        calls.append(self._overload_func)
+        return generic(self, args, kws)
+
+    monkeypatch.setattr(templates._OverloadFunctionTemplate, "generic", counted)
+    monkeypatch.setattr(_jit, "_INLINE_SIGNATURES", {})
+    return calls
+
+
+def _typed_twice(function, args):
+    context = cpu_target.typing_context
+    template, = context.resolve_value_type(function).templates
+    return template(context).generic(args, {}), template(context).generic(args, {})
+
+
+def test_rayaccels_inline_overloads_are_typed_once_per_argument_types_only_inside_the_context(typings):
+    rays = types.Array(types.float32, 2, "A")
+    args = (rays, rays, types.int64, types.int64)
+    with _inline_overloads_typed_once():
+        first, second = _typed_twice(unusable_rays, args)
+        assert first == second and first.return_type == types.int64
+        assert typings.count(_unusable_rays) == 1
+        _typed_twice(unusable_rays, (rays, types.Array(types.float64, 2, "A"), types.int64, types.int64))
+        assert typings.count(_unusable_rays) == 2
+    _typed_twice(unusable_rays, args)
+    assert typings.count(_unusable_rays) == 4
+
+
+def test_a_users_inline_overload_is_typed_as_numba_types_it_inside_the_context(typings):
+    with _inline_overloads_typed_once():
+        first, second = _typed_twice(_users_half, (types.float64,))
+    assert first == second and first.return_type == types.float64
+    assert typings.count(_users_half_overload) == 2
+
+
+def _branching(values, limit):
+    total = 0.0
+    alias = values
+    for value in alias:
+        step = value
+        if step > limit:
+            other = step
+            total += other
+        else:
+            kept = limit
+            total -= kept
+    result = total
+    return result
+
+
+def test_copy_propagation_finds_the_same_copies_with_its_name_sets_copied_flat():
+    blocks = compiler.run_frontend(_branching).blocks
+    one_type = collections.defaultdict(lambda: types.float64)
+    expected = ir_utils.copy_propagate(blocks, one_type)
+    with _name_sets_copied_flat():
+        assert ir_utils.copy is _FlatCopiesOfNameSets
+        found = ir_utils.copy_propagate(blocks, one_type)
+    assert ir_utils.copy is copy
+    assert found == expected
+    assert any(expected[1].values()), "the function should have copies to propagate"
+
+
+def test_flat_copies_are_copies_of_name_sets_and_deep_copies_of_anything_else():
+    name_sets = {0: {("a", "b"), ("c", "d")}, 4: {"e"}, 8: set()}
+    copied = _FlatCopiesOfNameSets.deepcopy(name_sets)
+    assert copied == name_sets
+    copied[0].add(("x", "y"))
+    assert ("x", "y") not in name_sets[0]
+    nested = {0: {("a", "b")}, 1: [["list"]]}
+    deep = _FlatCopiesOfNameSets.deepcopy(nested)
+    assert deep == nested and deep[1][0] is not nested[1][0]
+    holding_a_var = {0: {ir.Var(ir.Scope(None, ir.Loc("test", 1)), "v", ir.Loc("test", 1))}}
+    assert next(iter(_FlatCopiesOfNameSets.deepcopy(holding_a_var)[0])) is not next(iter(holding_a_var[0]))
