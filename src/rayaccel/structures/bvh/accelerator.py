@@ -27,7 +27,7 @@ from .packet_slab import BOUND_VALUES, PACKET
 from .refit import refit_bvh, refit_geometry_boxes
 from .reinsertion import reinsert_subtrees
 from .split_morton import morton_codes
-from .traverse import BOX, KDOP, SPHERE_VOLUME, bvh_trace_kernel
+from .traverse import BOX, KDOP, SPHERE_VOLUME, bvh_closest_kernel, bvh_crossings_kernel
 from .traverse_interleaved import (
     SLOT_FLOATS,
     SLOT_INTS,
@@ -268,7 +268,8 @@ class BoundingVolumeHierarchy(Accelerator):
             b = self.bvh
             stack_node = thread_rows((rows, self.max_depth + 2), np.int32)
             stack_t = thread_rows((rows, self.max_depth + 2))
-            walk_rays(bvh_trace_kernel, len(batch.origins), self.bounds_kind, b.node_records, self._volume_rows,
+            walk = bvh_closest_kernel if action.mode == NEAREST else bvh_crossings_kernel
+            walk_rays(walk, len(batch.origins), self.bounds_kind, b.node_records, self._volume_rows,
                       b.node_records.view(np.int32), b.prim_order, self.scene.kind, self.geometry, KDOP_NORMALS,
                       *batch, any_hit, stack_node, stack_t, action, work)
             return

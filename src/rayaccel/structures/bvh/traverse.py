@@ -1,4 +1,4 @@
-"""Stack traversal of the flat BVH, closest hit and any hit.
+"""Stack traversal of the flat BVH: closest hit and any hit, and the walk of the other actions.
 
 At an inner node both children's volumes are tested; the ray descends into
 the nearer one that it enters before its best hit so far and pushes the
@@ -23,10 +23,10 @@ from ...geometry.kdop import KDOP_NORMALS
 from ...geometry.primitive import ray_setup
 from ...geometry.sphere import sphere_span
 from ...rays import ray_limit, result_row
-from ..actions import finish_ray, visit_prim
+from ..actions import NEAREST, finish_ray_in_mode, visit_prim_in_mode
 
 __all__ = ["BOX", "SPHERE_VOLUME", "KDOP", "KDOP_NORMALS", "tighten", "enter_box", "volume_ray_setup",
-           "bvh_trace_kernel"]
+           "bvh_closest_kernel", "bvh_crossings_kernel"]
 
 BOX = 0
 SPHERE_VOLUME = 1
@@ -117,14 +117,15 @@ def volume_ray_setup(ox, oy, oz, dx, dy, dz, normals, with_diagonals):
     return proj_o, proj_inv, near_faces
 
 
-@chunk_kernel
-def bvh_trace_kernel(ray_first, ray_end, tid, bounds_kind, node_box, node_volume, node_links, prim_order, kind, geom,
-                     normals, origins, directions, t_min, t_max, hit_slot, any_hit, stack_node, stack_t, action, work):
-    """Trace every ray through the BVH; ``geom`` is in leaf order (``geom[prim_order]``).
+@inline_kernel
+def _walk(ray_first, ray_end, tid, bounds_kind, node_box, node_volume, node_links, prim_order, kind, geom, normals,
+          origins, directions, t_min, t_max, hit_slot, any_hit, stack_node, stack_t, mode, action, work):
+    """Trace rays ``ray_first`` to ``ray_end - 1`` through the BVH; ``geom`` is in leaf order
+    (``geom[prim_order]``).
 
     ``node_box`` is the packed float32 record array of :func:`.layout.pack_nodes`
     and ``node_links`` the same memory seen as int32 (columns 6 and 7: first, count). At a
-    leaf each primitive gets the leaf action (:mod:`..actions`).
+    leaf each primitive gets the leaf action (:mod:`..actions`) in ``mode``.
     """
     count_work = work.shape[0] > 0
     for i in range(ray_first, ray_end):
@@ -154,9 +155,10 @@ def bvh_trace_kernel(ray_first, ray_end, tid, bounds_kind, node_box, node_volume
                 first = node_links[node, 6]
                 for k in range(first, first + count):
                     n_tests += 1
-                    best_t, best_prim, best_u, best_v, stop = visit_prim(action, row, kind, geom, k,
-                                                                         prim_order[k], ray, ray_t_min, best_t,
-                                                                         best_prim, best_u, best_v, any_hit)
+                    best_t, best_prim, best_u, best_v, stop = visit_prim_in_mode(mode, action, row, kind, geom, k,
+                                                                                 prim_order[k], ray, ray_t_min,
+                                                                                 best_t, best_prim, best_u, best_v,
+                                                                                 any_hit)
                     if stop:
                         break
                 if any_hit and best_prim >= 0:
@@ -184,8 +186,28 @@ def bvh_trace_kernel(ray_first, ray_end, tid, bounds_kind, node_box, node_volume
                 sp -= 1
                 if stack_t[tid, sp] <= best_t:
                     node = stack_node[tid, sp]
-        finish_ray(action, row, best_t, best_prim, best_u, best_v)
+        finish_ray_in_mode(mode, action, row, best_t, best_prim, best_u, best_v)
         if count_work:
             work[row, 0] = n_nodes
             work[row, 1] = n_tests
             work[row, 3] = n_leaves
+
+
+@chunk_kernel
+def bvh_closest_kernel(ray_first, ray_end, tid, bounds_kind, node_box, node_volume, node_links, prim_order, kind,
+                       geom, normals, origins, directions, t_min, t_max, hit_slot, any_hit, stack_node, stack_t, action,
+                       work):
+    """The closest-hit and any-hit walk (an action of mode ``NEAREST``), the other modes' code
+    pruned before it is compiled (:func:`..actions.visit_prim_in_mode`), as for the eight-wide
+    walk (:func:`.traverse_wide.wide_nearest_kernel`)."""
+    _walk(ray_first, ray_end, tid, bounds_kind, node_box, node_volume, node_links, prim_order, kind, geom, normals,
+          origins, directions, t_min, t_max, hit_slot, any_hit, stack_node, stack_t, NEAREST, action, work)
+
+
+@chunk_kernel
+def bvh_crossings_kernel(ray_first, ray_end, tid, bounds_kind, node_box, node_volume, node_links, prim_order, kind,
+                         geom, normals, origins, directions, t_min, t_max, hit_slot, any_hit, stack_node, stack_t,
+                         action, work):
+    """The walk for the other actions (counting, listing, winding), compiled at their first use."""
+    _walk(ray_first, ray_end, tid, bounds_kind, node_box, node_volume, node_links, prim_order, kind, geom, normals,
+          origins, directions, t_min, t_max, hit_slot, any_hit, stack_node, stack_t, action.mode, action, work)
