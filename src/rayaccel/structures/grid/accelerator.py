@@ -7,11 +7,12 @@ import time
 import numpy as np
 
 from ...stats import box_area, surface_area_stats
+from ..actions import NEAREST
 from ..base import Accelerator, walk_rays
 from .build_uniform import build_grid, capped_resolution, grid_box, resolution_for
 from .mailbox import MailboxPool
 from .nearest import grid_nearest
-from .traverse import grid_trace_kernel
+from .traverse import grid_closest_kernel, grid_crossings_kernel
 
 __all__ = ["UniformGrid"]
 
@@ -83,8 +84,9 @@ class UniformGrid(Accelerator):
     def _trace(self, batch, any_hit, action, work):
         g = self.grid
         with self._mailboxes_for(action).lend(len(batch.origins)) as (mailbox, base):
-            walk_rays(grid_trace_kernel, len(batch.origins), g.lo, g.hi, g.res, g.cell_size, g.cell_first,
-                      g.cell_prims, self.scene.kind, self.scene.geometry, *batch, any_hit, mailbox, base, action, work)
+            walk = grid_closest_kernel if action.mode == NEAREST else grid_crossings_kernel
+            walk_rays(walk, len(batch.origins), g.lo, g.hi, g.res, g.cell_size, g.cell_first, g.cell_prims,
+                      self.scene.kind, self.scene.geometry, *batch, any_hit, mailbox, base, action, work)
 
     def _nearest(self, points, limit_d2, out_d2, out_prim):
         """Cells searched outward in shells (:mod:`.nearest`)."""

@@ -2,7 +2,7 @@
 
 The optimal number of cells ``2 n C_i / C_c`` (see :mod:`.build_uniform`)
 depends on how fast this machine tests a primitive relative to one DDA step
-of the real traversal (:func:`.traverse.grid_trace_kernel`). Fitting the time
+of the real traversal (:func:`.traverse.grid_closest_kernel`). Fitting the time
 of whole traversals against their cell and test counts is ill-posed: across
 grid densities the two counts move against each other, so timing noise decides
 the sign of the fitted costs. Each cost is therefore measured on its own, in
@@ -54,7 +54,7 @@ from ...rays import WORK_COLUMNS
 from ...scene import SPHERE, TRIANGLE, Spheres, TriangleMesh
 from ..actions import nearest_hit
 from .build_uniform import build_grid, grid_box
-from .traverse import grid_trace_kernel
+from .traverse import grid_closest_kernel
 
 __all__ = ["calibrate", "calibration", "cost_ratio", "cache_path", "fit_slope", "DEFAULT_RATIOS",
            "MAX_UNCERTAINTY", "ATTEMPTS", "RATIO_VARIABLE"]
@@ -122,7 +122,7 @@ class _Traversal:
     def _run(self, work):
         n = len(self.rays[0])
         g = self.grid
-        grid_trace_kernel(0, n, 0, g.lo, g.hi, g.res, g.cell_size, g.cell_first, g.cell_prims, self.scene.kind,
+        grid_closest_kernel(0, n, 0, g.lo, g.hi, g.res, g.cell_size, g.cell_first, g.cell_prims, self.scene.kind,
                           self.scene.geometry, *self.rays, False, self.mailbox, self.stamp,
                           nearest_hit(np.full(n, np.inf), np.full(n, -1, dtype=np.int64), np.zeros(n), np.zeros(n)),
                           work)

@@ -24,9 +24,9 @@ from ..._jit import chunk_kernel, inline_kernel, kernel
 from ...geometry.box import clip_to_box
 from ...geometry.primitive import ray_setup
 from ...rays import ray_limit, result_row
-from ..actions import finish_ray, intersect_references
+from ..actions import NEAREST, finish_ray_in_mode, intersect_references
 
-__all__ = ["axis_start", "dda_step", "grid_trace_kernel"]
+__all__ = ["axis_start", "dda_step", "grid_closest_kernel", "grid_crossings_kernel"]
 
 
 @kernel
@@ -61,10 +61,11 @@ def dda_step(cx, cy, cz, next_x, next_y, next_z, step_x, step_y, step_z, delta_x
     return cx, cy, cz, next_x, next_y, next_z, inside
 
 
-@chunk_kernel
-def grid_trace_kernel(ray_first, ray_end, tid, grid_lo, grid_hi, res, cell_size, cell_first, cell_prims, kind, geom,
-                      origins, directions, t_min, t_max, hit_slot, any_hit, mailbox, ray_id_base, action, work):
-    """Trace every ray.
+@inline_kernel
+def _walk(ray_first, ray_end, tid, grid_lo, grid_hi, res, cell_size, cell_first, cell_prims, kind, geom, origins,
+          directions, t_min, t_max, hit_slot, any_hit, mailbox, ray_id_base, mode, action, work):
+    """Trace rays ``ray_first`` to ``ray_end - 1``, giving the action, in ``mode``, to every
+    primitive of the cells a ray crosses.
 
     ``mailbox`` is (threads, n_prims), or empty to disable mailboxing; ray ``i``
     stamps it with ``ray_id_base + i``, so a mailbox can be reused by later
@@ -79,7 +80,7 @@ def grid_trace_kernel(ray_first, ray_end, tid, grid_lo, grid_hi, res, cell_size,
         dx, dy, dz = directions[i, 0], directions[i, 1], directions[i, 2]
         t_enter, t_exit = clip_to_box(grid_lo, grid_hi, ox, oy, oz, dx, dy, dz, ray_t_min, ray_t_max)
         if t_enter > t_exit:
-            finish_ray(action, row, np.inf, -1, 0.0, 0.0)
+            finish_ray_in_mode(mode, action, row, np.inf, -1, 0.0, 0.0)
             continue
         ray = ray_setup(ox, oy, oz, dx, dy, dz)
         cx, step_x, next_x, delta_x = axis_start(ox, dx, t_enter, grid_lo[0], cell_size[0], res[0])
@@ -97,7 +98,7 @@ def grid_trace_kernel(ray_first, ray_end, tid, grid_lo, grid_hi, res, cell_size,
             n_cells += 1
             flat = cx + nx * (cy + ny * cz)
             best_t, best_prim, best_u, best_v, n_tests, n_skips = intersect_references(
-                action.mode, action, row, cell_first[flat], cell_first[flat + 1], cell_prims, mailbox, tid, stamp, kind,
+                mode, action, row, cell_first[flat], cell_first[flat + 1], cell_prims, mailbox, tid, stamp, kind,
                 geom, False, ray, ray_t_min, best_t, best_prim, best_u, best_v, n_tests, n_skips, any_hit)
             if any_hit and best_prim >= 0:
                 break
@@ -108,9 +109,26 @@ def grid_trace_kernel(ray_first, ray_end, tid, grid_lo, grid_hi, res, cell_size,
                                                                   step_z, delta_x, delta_y, delta_z, res)
             if not inside:
                 break
-        finish_ray(action, row, best_t, best_prim, best_u, best_v)
+        finish_ray_in_mode(mode, action, row, best_t, best_prim, best_u, best_v)
         if count_work:
             work[row, 0] = n_cells
             work[row, 1] = n_tests
             work[row, 2] = n_skips
             work[row, 3] = n_cells
+
+
+@chunk_kernel
+def grid_closest_kernel(ray_first, ray_end, tid, grid_lo, grid_hi, res, cell_size, cell_first, cell_prims, kind, geom,
+                        origins, directions, t_min, t_max, hit_slot, any_hit, mailbox, ray_id_base, action, work):
+    """The closest-hit and any-hit walk (an action of mode ``NEAREST``), the other modes' code
+    pruned before it is compiled (:func:`..actions.visit_prim_in_mode`)."""
+    _walk(ray_first, ray_end, tid, grid_lo, grid_hi, res, cell_size, cell_first, cell_prims, kind, geom, origins,
+          directions, t_min, t_max, hit_slot, any_hit, mailbox, ray_id_base, NEAREST, action, work)
+
+
+@chunk_kernel
+def grid_crossings_kernel(ray_first, ray_end, tid, grid_lo, grid_hi, res, cell_size, cell_first, cell_prims, kind, geom,
+                          origins, directions, t_min, t_max, hit_slot, any_hit, mailbox, ray_id_base, action, work):
+    """The walk for the other actions (counting, listing, winding), compiled at their first use."""
+    _walk(ray_first, ray_end, tid, grid_lo, grid_hi, res, cell_size, cell_first, cell_prims, kind, geom, origins,
+          directions, t_min, t_max, hit_slot, any_hit, mailbox, ray_id_base, action.mode, action, work)

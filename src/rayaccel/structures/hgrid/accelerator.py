@@ -10,11 +10,12 @@ import numpy as np
 from ..._jit import thread_rows
 from ..._validate import check_number
 from ...stats import box_area, surface_area_stats
+from ..actions import NEAREST
 from ..base import Accelerator, walk_rays
 from ..grid.mailbox import MailboxPool
 from ..grid.nearest import grid_nearest
 from .build_nested import build_hierarchical_grid
-from .traverse import hgrid_trace_kernel
+from .traverse import hgrid_closest_kernel, hgrid_crossings_kernel
 
 __all__ = ["HierarchicalGrid"]
 
@@ -68,9 +69,10 @@ class HierarchicalGrid(Accelerator):
         saved_int = thread_rows((rows, levels, 7), np.int64)
         saved_float = thread_rows((rows, levels, 7))
         with self._mailboxes_for(action).lend(len(batch.origins)) as (mailbox, base):
-            walk_rays(hgrid_trace_kernel, len(batch.origins), h.lo, h.hi, h.grid_lo, h.grid_res, h.grid_cell_size,
-                      h.grid_cell_base, h.cell_child, h.cell_first, h.cell_prims, self.scene.kind, self.scene.geometry,
-                      *batch, any_hit, mailbox, base, saved_int, saved_float, action, work)
+            walk = hgrid_closest_kernel if action.mode == NEAREST else hgrid_crossings_kernel
+            walk_rays(walk, len(batch.origins), h.lo, h.hi, h.grid_lo, h.grid_res, h.grid_cell_size, h.grid_cell_base,
+                      h.cell_child, h.cell_first, h.cell_prims, self.scene.kind, self.scene.geometry, *batch, any_hit,
+                      mailbox, base, saved_int, saved_float, action, work)
 
     def _nearest(self, points, limit_d2, out_d2, out_prim):
         """The top grid searched outward in shells, nested grids scanned with pruning (:mod:`..grid.nearest`)."""

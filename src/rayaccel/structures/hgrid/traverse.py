@@ -15,23 +15,24 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..._jit import chunk_kernel
+from ..._jit import chunk_kernel, inline_kernel
 from ...geometry.box import clip_to_box
 from ...geometry.primitive import ray_setup
 from ...rays import ray_limit, result_row
-from ..actions import finish_ray, intersect_references
+from ..actions import NEAREST, finish_ray_in_mode, intersect_references
 from ..grid.traverse import axis_start, dda_step
 
-__all__ = ["hgrid_trace_kernel"]
+__all__ = ["hgrid_closest_kernel", "hgrid_crossings_kernel"]
 
 
-@chunk_kernel
-def hgrid_trace_kernel(ray_first, ray_end, tid, lo, hi, grid_lo, grid_res, grid_cell_size, grid_cell_base, cell_child,
-                       cell_first, cell_prims, kind, geom, origins, directions, t_min, t_max, hit_slot, any_hit,
-                       mailbox, ray_id_base, saved_int, saved_float, action, work):
+@inline_kernel
+def _walk(ray_first, ray_end, tid, lo, hi, grid_lo, grid_res, grid_cell_size, grid_cell_base, cell_child, cell_first,
+          cell_prims, kind, geom, origins, directions, t_min, t_max, hit_slot, any_hit, mailbox, ray_id_base, saved_int,
+          saved_float, mode, action, work):
     """Trace rays ``ray_first`` to ``ray_end - 1`` (one chunk of :func:`rayaccel._jit.on_threads`), their
     stacks in row ``tid``; ``saved_int`` (threads, levels, 7) int64 and ``saved_float``
-    (threads, levels, 7) hold the outer walks' DDA states; ``mailbox`` as in the uniform grid."""
+    (threads, levels, 7) hold the outer walks' DDA states; ``mailbox`` as in the uniform grid; the
+    action in ``mode``, as in the uniform grid's walk."""
     count_work = work.shape[0] > 0
     for i in range(ray_first, ray_end):
         row = result_row(hit_slot, i)
@@ -40,7 +41,7 @@ def hgrid_trace_kernel(ray_first, ray_end, tid, lo, hi, grid_lo, grid_res, grid_
         dx, dy, dz = directions[i, 0], directions[i, 1], directions[i, 2]
         t_enter, stretch_end = clip_to_box(lo, hi, ox, oy, oz, dx, dy, dz, ray_t_min, ray_t_max)
         if t_enter > stretch_end:
-            finish_ray(action, row, np.inf, -1, 0.0, 0.0)
+            finish_ray_in_mode(mode, action, row, np.inf, -1, 0.0, 0.0)
             continue
         ray = ray_setup(ox, oy, oz, dx, dy, dz)
         stamp = ray_id_base + i
@@ -90,7 +91,7 @@ def hgrid_trace_kernel(ray_first, ray_end, tid, lo, hi, grid_lo, grid_res, grid_
                                                          grid_res[g, 2])
                 continue
             best_t, best_prim, best_u, best_v, n_tests, n_skips = intersect_references(
-                action.mode, action, row, cell_first[cell], cell_first[cell + 1], cell_prims, mailbox, tid, stamp, kind,
+                mode, action, row, cell_first[cell], cell_first[cell + 1], cell_prims, mailbox, tid, stamp, kind,
                 geom, False, ray, ray_t_min, best_t, best_prim, best_u, best_v, n_tests, n_skips, any_hit)
             if (any_hit and best_prim >= 0) or (best_prim >= 0 and best_t <= cell_exit):
                 break
@@ -125,9 +126,30 @@ def hgrid_trace_kernel(ray_first, ray_end, tid, lo, hi, grid_lo, grid_res, grid_
                 stretch_end = saved_float[tid, level, 6]
             if done:
                 break
-        finish_ray(action, row, best_t, best_prim, best_u, best_v)
+        finish_ray_in_mode(mode, action, row, best_t, best_prim, best_u, best_v)
         if count_work:
             work[row, 0] = n_cells
             work[row, 1] = n_tests
             work[row, 2] = n_skips
             work[row, 3] = n_leaves
+
+
+@chunk_kernel
+def hgrid_closest_kernel(ray_first, ray_end, tid, lo, hi, grid_lo, grid_res, grid_cell_size, grid_cell_base, cell_child,
+                         cell_first, cell_prims, kind, geom, origins, directions, t_min, t_max, hit_slot, any_hit,
+                         mailbox, ray_id_base, saved_int, saved_float, action, work):
+    """The closest-hit and any-hit walk (an action of mode ``NEAREST``), the other modes' code
+    pruned before it is compiled (:func:`..actions.visit_prim_in_mode`)."""
+    _walk(ray_first, ray_end, tid, lo, hi, grid_lo, grid_res, grid_cell_size, grid_cell_base, cell_child, cell_first,
+          cell_prims, kind, geom, origins, directions, t_min, t_max, hit_slot, any_hit, mailbox, ray_id_base, saved_int,
+          saved_float, NEAREST, action, work)
+
+
+@chunk_kernel
+def hgrid_crossings_kernel(ray_first, ray_end, tid, lo, hi, grid_lo, grid_res, grid_cell_size, grid_cell_base,
+                           cell_child, cell_first, cell_prims, kind, geom, origins, directions, t_min, t_max, hit_slot,
+                           any_hit, mailbox, ray_id_base, saved_int, saved_float, action, work):
+    """The walk for the other actions (counting, listing, winding), compiled at their first use."""
+    _walk(ray_first, ray_end, tid, lo, hi, grid_lo, grid_res, grid_cell_size, grid_cell_base, cell_child, cell_first,
+          cell_prims, kind, geom, origins, directions, t_min, t_max, hit_slot, any_hit, mailbox, ray_id_base, saved_int,
+          saved_float, action.mode, action, work)

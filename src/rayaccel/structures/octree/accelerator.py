@@ -11,12 +11,13 @@ import numpy as np
 from ..._jit import thread_rows
 from ..._validate import check_number
 from ...stats import box_area, surface_area_stats
+from ..actions import NEAREST
 from ..base import Accelerator, walk_rays
 from ..grid.build_uniform import grid_box
 from .build_adaptive import build_octree
 from .layout import OctreeArrays
 from .nearest import octree_nearest_kernel
-from .traverse import octree_trace_kernel
+from .traverse import octree_closest_kernel, octree_crossings_kernel
 
 __all__ = ["Octree"]
 
@@ -73,9 +74,9 @@ class Octree(Accelerator):
         stack_node = thread_rows((rows, 3 * self.max_depth + 4), np.int32)
         stack_t = thread_rows((rows, 3 * self.max_depth + 4, 2))
         with self._mailboxes_for(action).lend(len(batch.origins)) as (mailbox, base):
-            walk_rays(octree_trace_kernel, len(batch.origins), o.lo, o.hi, o.node_center, o.node_link, o.leaf_prims,
-                      self.scene.kind, self.scene.geometry, *batch, any_hit, mailbox, base, stack_node, stack_t, action,
-                      work)
+            walk = octree_closest_kernel if action.mode == NEAREST else octree_crossings_kernel
+            walk_rays(walk, len(batch.origins), o.lo, o.hi, o.node_center, o.node_link, o.leaf_prims, self.scene.kind,
+                      self.scene.geometry, *batch, any_hit, mailbox, base, stack_node, stack_t, action, work)
 
     def _nearest(self, points, limit_d2, out_d2, out_prim):
         """Children nearest first by the distance to their cells (:mod:`.nearest`)."""

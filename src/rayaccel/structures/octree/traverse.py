@@ -19,10 +19,10 @@ from ..._jit import chunk_kernel, inline_kernel
 from ...geometry.box import clip_to_box
 from ...geometry.primitive import ray_setup
 from ...rays import ray_limit, result_row
-from ..actions import finish_ray, intersect_references
+from ..actions import NEAREST, finish_ray_in_mode, intersect_references
 from ..base import settled_before
 
-__all__ = ["octree_trace_kernel"]
+__all__ = ["octree_closest_kernel", "octree_crossings_kernel"]
 
 
 @inline_kernel
@@ -40,13 +40,13 @@ def _crossing(o, d, inv, center):
     return (center - o) * inv if d != 0.0 else np.inf
 
 
-@chunk_kernel
-def octree_trace_kernel(ray_first, ray_end, tid, lo, hi, node_center, node_link, leaf_prims, kind, geom, origins,
-                        directions, t_min, t_max, hit_slot, any_hit, mailbox, ray_id_base, stack_node, stack_t, action,
-                        work):
+@inline_kernel
+def _walk(ray_first, ray_end, tid, lo, hi, node_center, node_link, leaf_prims, kind, geom, origins, directions, t_min,
+          t_max, hit_slot, any_hit, mailbox, ray_id_base, stack_node, stack_t, mode, action, work):
     """Trace rays ``ray_first`` to ``ray_end - 1`` (one chunk of :func:`rayaccel._jit.on_threads`), their
     stacks in row ``tid``; ``stack_node`` (threads, 3 * depth + 4) int32, ``stack_t`` (threads, same, 2);
-    ``mailbox`` as in the uniform grid (empty for the closest hit, which needs none)."""
+    ``mailbox`` as in the uniform grid (empty for the closest hit, which needs none); the action in
+    ``mode``, as in the uniform grid's walk."""
     count_work = work.shape[0] > 0
     for i in range(ray_first, ray_end):
         row = result_row(hit_slot, i)
@@ -55,7 +55,7 @@ def octree_trace_kernel(ray_first, ray_end, tid, lo, hi, node_center, node_link,
         dx, dy, dz = directions[i, 0], directions[i, 1], directions[i, 2]
         t0, t1 = clip_to_box(lo, hi, ox, oy, oz, dx, dy, dz, ray_t_min, ray_t_max)
         if t0 > t1:
-            finish_ray(action, row, np.inf, -1, 0.0, 0.0)
+            finish_ray_in_mode(mode, action, row, np.inf, -1, 0.0, 0.0)
             continue
         ix, iy, iz = 1.0 / dx, 1.0 / dy, 1.0 / dz
         ray = ray_setup(ox, oy, oz, dx, dy, dz)
@@ -117,7 +117,7 @@ def octree_trace_kernel(ray_first, ray_end, tid, lo, hi, node_center, node_link,
                 n_leaves += 1
                 first = node_link[node, 0]
                 best_t, best_prim, best_u, best_v, n_tests, _ = intersect_references(
-                    action.mode, action, row, first, first + count, leaf_prims, mailbox, tid, ray_id_base + i, kind,
+                    mode, action, row, first, first + count, leaf_prims, mailbox, tid, ray_id_base + i, kind,
                     geom, False, ray, ray_t_min, best_t, best_prim, best_u, best_v, n_tests, 0, any_hit)
                 if (any_hit and best_prim >= 0) or settled_before(best_prim, best_t, t1):
                     break
@@ -128,8 +128,27 @@ def octree_trace_kernel(ray_first, ray_end, tid, lo, hi, node_center, node_link,
                     node = stack_node[tid, sp]
                     t0 = stack_t[tid, sp, 0]
                     t1 = stack_t[tid, sp, 1]
-        finish_ray(action, row, best_t, best_prim, best_u, best_v)
+        finish_ray_in_mode(mode, action, row, best_t, best_prim, best_u, best_v)
         if count_work:
             work[row, 0] = n_nodes
             work[row, 1] = n_tests
             work[row, 3] = n_leaves
+
+
+@chunk_kernel
+def octree_closest_kernel(ray_first, ray_end, tid, lo, hi, node_center, node_link, leaf_prims, kind, geom, origins,
+                          directions, t_min, t_max, hit_slot, any_hit, mailbox, ray_id_base, stack_node, stack_t,
+                          action, work):
+    """The closest-hit and any-hit walk (an action of mode ``NEAREST``), the other modes' code
+    pruned before it is compiled (:func:`..actions.visit_prim_in_mode`)."""
+    _walk(ray_first, ray_end, tid, lo, hi, node_center, node_link, leaf_prims, kind, geom, origins, directions, t_min,
+          t_max, hit_slot, any_hit, mailbox, ray_id_base, stack_node, stack_t, NEAREST, action, work)
+
+
+@chunk_kernel
+def octree_crossings_kernel(ray_first, ray_end, tid, lo, hi, node_center, node_link, leaf_prims, kind, geom, origins,
+                            directions, t_min, t_max, hit_slot, any_hit, mailbox, ray_id_base, stack_node, stack_t,
+                            action, work):
+    """The walk for the other actions (counting, listing, winding), compiled at their first use."""
+    _walk(ray_first, ray_end, tid, lo, hi, node_center, node_link, leaf_prims, kind, geom, origins, directions, t_min,
+          t_max, hit_slot, any_hit, mailbox, ray_id_base, stack_node, stack_t, action.mode, action, work)
