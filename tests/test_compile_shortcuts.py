@@ -1,12 +1,14 @@
 """rayaccel's kernels compile under three shortcuts through Numba (``rayaccel._jit._compile_shortcuts``):
 the scopes of inlined functions shared by their IR copies, rayaccel's always-inlined overloads typed once
 per argument types, and copy propagation's sets of names copied flat. Each gives what Numba gives without
-it, and nothing else compiled in the process sees them."""
+it, and nothing else compiled in the process sees them. Chunk kernels compile through the parallel
+pipeline less its search for parallel loops (``rayaccel._jit._NoParforSearch``), to the same code."""
 
 from __future__ import annotations
 
 import collections
 import copy
+import re
 
 import numba
 import numpy as np
@@ -145,3 +147,67 @@ def test_flat_copies_are_copies_of_name_sets_and_deep_copies_of_anything_else():
     assert deep == nested and deep[1][0] is not nested[1][0]
     holding_a_var = {0: {ir.Var(ir.Scope(None, ir.Loc("test", 1)), "v", ir.Loc("test", 1))}}
     assert next(iter(_FlatCopiesOfNameSets.deepcopy(holding_a_var)[0])) is not next(iter(holding_a_var[0]))
+
+
+@numba.njit(inline="always")
+def _weighted(values, weights, k):
+    if weights[k] > 0.0:
+        return values[k] * weights[k], 1
+    return 0.0, 0
+
+
+@numba.njit(inline="always")
+def _visit_run(values, weights, out, first, n, total, count):
+    for k in range(first, first + n):
+        add, hit = _weighted(values, weights, k)
+        total, count = total + add, count + hit
+        out[k] = total
+        if total > 100.0:
+            break
+    return total, count
+
+
+def _walk_like(first, end, values, weights, out):
+    """A chunk kernel's shape: a serial loop over its items through functions inlined at the IR level
+    that take its arrays, some items visiting a run of others as a walk visits a leaf."""
+    total = 0.0
+    count = 0
+    item = first
+    while item < end:
+        if weights[item] < 0.5:
+            total, count = _visit_run(values, weights, out, item, 3, total, count)
+            item += 3
+        else:
+            item += 1
+    return total, count
+
+
+def _machine_code(dispatcher, signature):
+    """The assembly of ``dispatcher`` for ``signature``, its symbol, label and constant names set aside."""
+    code = dispatcher.inspect_asm(signature)
+    for pattern in (r"_ZN[\w$.]+", r"\.L\w+", r'"?\.(const|bytes)\.[\w.-]+"?'):
+        code = re.sub(pattern, "NAME", code)
+    return [line for line in code.splitlines() if not re.match(r"\s*\.(file|ident|section|size|ascii|asciz)", line)]
+
+
+def test_chunk_kernels_skip_the_search_for_parallel_loops_and_compile_to_the_same_code():
+    """The parallel pipeline without ``ParforPass`` and ``ParforFusionPass`` compiles the same machine
+    code as with them, for a function whose code the parallel pipeline changes (the serial
+    pipeline's differs)."""
+    signature = (types.int64, types.int64, types.float64[::1], types.float64[::1], types.float64[::1])
+    serial = numba.njit(**_jit._COMMON)(_walk_like)
+    through_numba = numba.njit(parallel=True, **_jit._COMMON)(_walk_like)
+    through_rayaccel = numba.njit(parallel=True, pipeline_class=_jit._NoParforSearch, **_jit._COMMON)(_walk_like)
+    for dispatcher in (serial, through_numba, through_rayaccel):
+        dispatcher.compile(signature)
+    passes_run = [set(name.split("_", 1)[1] for times in dispatcher.overloads[signature].metadata["pipeline_times"]
+                      .values() for name in times) for dispatcher in (through_numba, through_rayaccel)]
+    assert {"parfor_pass", "parfor_fusion_pass", "parfor_prelowering_pass"} <= passes_run[0]
+    assert "parfor_pass" not in passes_run[1] and "parfor_fusion_pass" not in passes_run[1]
+    assert "parfor_prelowering_pass" in passes_run[1]
+    assert _machine_code(serial, signature) != _machine_code(through_numba, signature)
+    assert _machine_code(through_rayaccel, signature) == _machine_code(through_numba, signature)
+    values, weights, out = np.arange(8.0), np.array([0.1, 1.0, 1.0, 1.0, 0.2, 0.0, 1.0, 1.0]), np.zeros(8)
+    total, count = through_rayaccel(0, 8, values, weights, out)
+    assert (total, count) == (pytest.approx(3.0 + 4.0 * 0.2 + 6.0), 5)
+    np.testing.assert_allclose(out, [0.0, 1.0, 3.0, 0.0, 3.8, 3.8, 9.8, 0.0])
