@@ -190,6 +190,7 @@ def _machine_code(dispatcher, signature):
     return [line for line in code.splitlines() if not re.match(r"\s*\.(file|ident|section|size|ascii|asciz)", line)]
 
 
+@pytest.mark.filterwarnings("ignore:(?s).*'parallel=True' was specified:numba.core.errors.NumbaPerformanceWarning")
 def test_chunk_kernels_skip_the_search_for_parallel_loops_and_compile_to_the_same_code():
     """The parallel pipeline without ``ParforPass`` and ``ParforFusionPass`` compiles the same machine
     code as with them, for a function whose code the parallel pipeline changes (the serial

@@ -60,7 +60,6 @@ _COMMON = dict(nogil=True, error_model="numpy", fastmath=False)
 unsigned = np.uint64
 
 
-
 def _same_scope(scope, memo):
     return scope
 
@@ -254,11 +253,11 @@ class _NoParforSearch(Compiler):
     in 331,959 lines of assembly, and forcing the lane packets and the BVH's and kd-tree's
     interleaved walks, 53 functions in 122,778 lines, every chunk kernel of the package among
     them: none different once symbol, label and constant names are set aside (2026-11-28).
-    Their array analysis and the fusion pass's two rounds of
-    simplification cost compile time that the pre-lowering's round repeats: that set took
-    419 s of CPU against 484 s (one process each, side by side on an empty cache), the
-    grid-BVH's first ``intersect`` and ``count`` (bunny, four processes each) 38.3-43.2 s
-    (median 39.5) against 42.0-54.9 s (median 46.2)."""
+    Their array analysis and the fusion pass's two rounds of simplification cost compile time
+    that the pre-lowering's round repeats: that set took 419 s of CPU against 484 s (one
+    process each, side by side on an empty cache), the grid-BVH's first ``intersect`` and
+    ``count`` (bunny, four processes each) 38.3-43.2 s (median 39.5) against 42.0-54.9 s
+    (median 46.2)."""
 
     def define_pipelines(self):
         pipelines = super().define_pipelines()
