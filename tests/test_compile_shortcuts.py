@@ -1,8 +1,9 @@
-"""rayaccel's kernels compile under three shortcuts through Numba (``rayaccel._jit._compile_shortcuts``):
+"""rayaccel's kernels compile under four shortcuts through Numba (``rayaccel._jit._compile_shortcuts``):
 the scopes of inlined functions shared by their IR copies, rayaccel's always-inlined overloads typed once
-per argument types, and copy propagation's sets of names copied flat. Each gives what Numba gives without
-it, and nothing else compiled in the process sees them. Chunk kernels compile through the parallel
-pipeline less its search for parallel loops (``rayaccel._jit._NoParforSearch``), to the same code."""
+per argument types, copy propagation's sets of names copied flat and liveness found on bit sets. Each gives
+what Numba gives without it, and nothing else compiled in the process sees them. Chunk kernels compile
+through the parallel pipeline less its search for parallel loops (``rayaccel._jit._NoParforSearch``), to
+the same code."""
 
 from __future__ import annotations
 
@@ -13,16 +14,19 @@ import re
 import numba
 import numpy as np
 import pytest
-from numba.core import compiler, ir, ir_utils, types
+from numba.core import analysis, compiler, ir, ir_utils, types
 from numba.core.registry import cpu_target
 from numba.core.typing import templates
 from numba.extending import overload
+from numba.parfors import parfor
 
 import rayaccel as ra
 from rayaccel import _jit
 from rayaccel._jit import (
     _FlatCopiesOfNameSets,
     _inline_overloads_typed_once,
+    _live_map_by_bits,
+    _live_maps_by_bits,
     _name_sets_copied_flat,
     _scopes_shared_by_copies,
 )
@@ -147,6 +151,40 @@ def test_flat_copies_are_copies_of_name_sets_and_deep_copies_of_anything_else():
     assert deep == nested and deep[1][0] is not nested[1][0]
     holding_a_var = {0: {ir.Var(ir.Scope(None, ir.Loc("test", 1)), "v", ir.Loc("test", 1))}}
     assert next(iter(_FlatCopiesOfNameSets.deepcopy(holding_a_var)[0])) is not next(iter(holding_a_var[0]))
+
+
+def _nested_loops(values, limit):
+    found = -1
+    for i in range(values.shape[0]):
+        total = 0.0
+        for j in range(i, values.shape[0]):
+            step = values[j]
+            if step > limit:
+                break
+            total += step
+        if total > limit:
+            found = i
+            continue
+        while total > 0.0:
+            total -= 1.0
+    return found
+
+
+@pytest.mark.parametrize("function", [_branching, _nested_loops], ids=["branches", "nested loops"])
+def test_liveness_on_bit_sets_finds_numbas_sets(function):
+    blocks = compiler.run_frontend(function).blocks
+    cfg = analysis.compute_cfg_from_blocks(blocks)
+    use_defs = analysis.compute_use_defs(blocks)
+    expected = analysis.compute_live_map(cfg, blocks, use_defs.usemap, use_defs.defmap)
+    assert _live_map_by_bits(cfg, blocks, use_defs.usemap, use_defs.defmap) == expected
+    assert any(expected.values()) and len(expected) > 3
+
+
+def test_liveness_on_bit_sets_only_inside_the_context():
+    original = analysis.compute_live_map
+    with _live_maps_by_bits():
+        assert analysis.compute_live_map is ir_utils.compute_live_map is parfor.compute_live_map is _live_map_by_bits
+    assert analysis.compute_live_map is ir_utils.compute_live_map is parfor.compute_live_map is original
 
 
 @numba.njit(inline="always")
