@@ -257,11 +257,12 @@ def _compile_shortcuts():
     each compiles the same code as Numba would without it (the grid-BVH's walk of every mode
     assembles to the same 5,651 lines with and without the second and third, the 114 functions of
     :class:`_NoParforSearch`'s first comparison to the same 331,959 lines with and without the
-    fourth), and none is in force outside rayaccel's compilations. The second and third, against the first alone, first use on an
-    empty cache (bunny, CPU, medians of three pairs of processes, 2026-11-28): bvh-binned
-    ``intersect`` 6.57 -> 5.88 s, ``count`` 14.86 -> 10.80 s, ``intersect_all`` after it 16.76 ->
-    11.93 s; grid-bvh ``count`` 55.9 -> 37.6 s. The fourth, later that day: grid-bvh's first
-    ``intersect`` and ``count`` 35.7-40.6 -> 28.2-32.6 s (three pairs of processes)."""
+    fourth), and none is in force outside rayaccel's compilations. The second and third, against the
+    first alone, first use on an empty cache (bunny, CPU, medians of three pairs of processes,
+    2026-11-28): bvh-binned ``intersect`` 6.57 -> 5.88 s, ``count`` 14.86 -> 10.80 s,
+    ``intersect_all`` after it 16.76 -> 11.93 s; grid-bvh ``count`` 55.9 -> 37.6 s. The fourth, later
+    that day: grid-bvh's first ``intersect`` and ``count`` 35.7-40.6 -> 28.2-32.6 s (three pairs of
+    processes)."""
     with (_scopes_shared_by_copies(), _inline_overloads_typed_once(), _name_sets_copied_flat(),
           _live_maps_by_bits()):
         yield
