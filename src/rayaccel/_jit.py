@@ -335,8 +335,8 @@ class _NoParforSearch(Compiler):
     Their array analysis and the fusion pass's two rounds of simplification cost compile time
     that the pre-lowering's round repeats: that set took 419 s of CPU against 484 s (one
     process each, side by side on an empty cache), the grid-BVH's first ``intersect`` and
-    ``count`` (bunny, four processes each) 38.3-43.2 s (median 39.5) against 42.0-54.9 s
-    (median 46.2)."""
+    ``count`` (bunny, four processes each, the two passes skipped by a patch of Numba for
+    functions without ``prange``) 38.3-43.2 s (median 39.5) against 42.0-54.9 s (median 46.2)."""
 
     def define_pipelines(self):
         pipelines = super().define_pipelines()

@@ -123,9 +123,9 @@ class _Traversal:
         n = len(self.rays[0])
         g = self.grid
         grid_closest_kernel(0, n, 0, g.lo, g.hi, g.res, g.cell_size, g.cell_first, g.cell_prims, self.scene.kind,
-                          self.scene.geometry, *self.rays, False, self.mailbox, self.stamp,
-                          nearest_hit(np.full(n, np.inf), np.full(n, -1, dtype=np.int64), np.zeros(n), np.zeros(n)),
-                          work)
+                            self.scene.geometry, *self.rays, False, self.mailbox, self.stamp,
+                            nearest_hit(np.full(n, np.inf), np.full(n, -1, dtype=np.int64), np.zeros(n), np.zeros(n)),
+                            work)
         self.stamp += n
         return work
 
