@@ -60,8 +60,8 @@ def test_float32_rays_walk_as_they_are_and_hit_what_their_float64_copy_hits(smal
         monkeypatch.setattr(accelerator, "interleaving_pays", lambda batch, lo, hi, nbytes, sampled, **_: True)
     seen = []
     walk_rays = accelerator.walk_rays
-    monkeypatch.setattr(accelerator, "walk_rays", lambda walk, n, *args: seen.append((walk.__name__, args)) or
-                        walk_rays(walk, n, *args))
+    monkeypatch.setattr(accelerator, "walk_rays", lambda walk, n, *args, **options: seen.append((walk.__name__, args))
+                        or walk_rays(walk, n, *args, **options))
     t_min, t_max = (0.0, np.inf) if limits == "shared" else own_limits(len(origins))
     wide, brute = ra.build(small_dragon, "bvh-binned"), ra.build(small_dragon, "none")
     wide_origins, wide_directions = origins.astype(np.float64), directions.astype(np.float64)

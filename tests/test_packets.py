@@ -216,8 +216,8 @@ def test_walks_that_check_their_rays_refuse_unusable_ones(small_dragon, monkeypa
         monkeypatch.setattr(accelerator, "interleaving_pays", lambda batch, lo, hi, nbytes, sampled, **_: True)
     walks = []
     walk_rays = accelerator.walk_rays
-    monkeypatch.setattr(accelerator, "walk_rays", lambda walk, *args: walks.append(walk.__name__) or
-                        walk_rays(walk, *args))
+    monkeypatch.setattr(accelerator, "walk_rays", lambda walk, *args, **options: walks.append(walk.__name__) or
+                        walk_rays(walk, *args, **options))
     bvh = ra.build(small_dragon, "bvh-binned")
     getattr(bvh, query)(origins, directions)
     assert walks == [kernel]
@@ -348,7 +348,7 @@ def _shear_set_ups(origins, directions, state, scalar_rows):
     """The vector set-up of the packet's triangle-test constants, and the scalar one of each
     ray in ``scalar_rows`` (rows as :data:`.packet_triangle.SHEAR_ROW` orders them); returns
     the vector set-up's code and the scalar axes' code, or ``NOT_SHARED`` where they differ."""
-    code = set_up_shear(origins, directions, 0, state)
+    code = set_up_shear(origins, directions, 0, PACKET // 2, state)
     scalar_code = 0
     for r in range(PACKET):
         _, _, _, _, _, _, kx, ky, kz, sx, sy, sz, okx, oky, okz = ray_setup(

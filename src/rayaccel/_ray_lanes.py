@@ -35,17 +35,35 @@ def load_eight(builder, array_type, pointer):
     return builder.fpext(builder.load(builder.bitcast(pointer, floats.as_pointer()), align=4), doubles)
 
 
-def rays_by_axis(context, builder, array_type, array, row):
+def rays_by_axis(context, builder, array_type, array, row, second=None):
     """The :data:`LANES` rows from ``row`` (an intp value) of an (n, 3) ray array that
     :func:`rays_readable` accepts, as three vectors of eight float64, x, y and z, one lane a ray:
-    three loads of eight numbers, shuffled from rows to lanes."""
+    three loads of eight numbers, shuffled from rows to lanes. Given ``second`` (an intp value),
+    lanes 4-7 take the four rows from ``second`` instead (a packet of two image rows,
+    :mod:`rayaccel.ray_tiles`): two loads of twelve numbers, joined, then shuffled alike."""
     intp = context.get_value_type(types.intp)
     data = context.make_array(array_type)(context, builder, array).data
+    to_lanes = [ir.Constant(ir.VectorType(ir.IntType(32), LANES), [3 * lane + axis for lane in range(LANES)])
+                for axis in range(3)]
+    if second is not None:
+        half = LANES // 2
+        halves = [_load_rows(builder, array_type, builder.gep(data, [builder.mul(first, ir.Constant(intp, 3))]), half)
+                  for first in (row, second)]
+        whole = builder.shuffle_vector(halves[0], halves[1],
+                                       ir.Constant(ir.VectorType(ir.IntType(32), 6 * half), list(range(6 * half))))
+        return [builder.shuffle_vector(whole, whole, lanes) for lanes in to_lanes]
     start = builder.gep(data, [builder.mul(row, ir.Constant(intp, 3))])
     parts = [load_eight(builder, array_type, builder.gep(start, [ir.Constant(intp, LANES * k)])) for k in range(3)]
     sixteen = ir.Constant(ir.VectorType(ir.IntType(32), 2 * LANES), list(range(2 * LANES)))
     low = builder.shuffle_vector(parts[0], parts[1], sixteen)
     high = builder.shuffle_vector(parts[2], parts[2], sixteen)
-    return [builder.shuffle_vector(low, high, ir.Constant(ir.VectorType(ir.IntType(32), LANES),
-                                                          [3 * lane + axis for lane in range(LANES)]))
-            for axis in range(3)]
+    return [builder.shuffle_vector(low, high, lanes) for lanes in to_lanes]
+
+
+def _load_rows(builder, array_type, pointer, rows):
+    """The ``3 * rows`` numbers of ``rows`` consecutive rays from ``pointer`` as one vector of float64."""
+    count = 3 * rows
+    if array_type.dtype == types.float64:
+        return builder.load(builder.bitcast(pointer, ir.VectorType(ir.DoubleType(), count).as_pointer()), align=8)
+    floats = builder.load(builder.bitcast(pointer, ir.VectorType(ir.FloatType(), count).as_pointer()), align=4)
+    return builder.fpext(floats, ir.VectorType(ir.DoubleType(), count))

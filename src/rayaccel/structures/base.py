@@ -64,14 +64,16 @@ def settled_before(best_prim, best_t, t_exit):
     return best_prim >= 0 and best_t < t_exit - EXIT_MARGIN * abs(t_exit)
 
 
-def walk_rays(walk, n_rays: int, *args) -> int:
+def walk_rays(walk, n_rays: int, *args, align: int = 1) -> int:
     """Run a structure's ray walk, a :func:`rayaccel._jit.chunk_kernel` taking ``(ray_first,
     ray_end, tid, *args)``, over ``n_rays`` rays on threads: chunks of :data:`RAY_CHUNK` rays
-    or more, about :data:`CHUNKS_PER_THREAD` per thread, handed out as threads free up; ``tid``
-    picks the chunk's rows of per-thread stacks and mailboxes. Returns the total of what the
-    walk returns for its chunks: the unusable rays it met, for a walk that tests its rays itself
-    (see :attr:`Accelerator._walk_checks_rays`), and 0 for one that returns nothing."""
+    or more, a multiple of ``align``, about :data:`CHUNKS_PER_THREAD` per thread, handed out as
+    threads free up; ``tid`` picks the chunk's rows of per-thread stacks and mailboxes. Returns
+    the total of what the walk returns for its chunks: the unusable rays it met, for a walk that
+    tests its rays itself (see :attr:`Accelerator._walk_checks_rays`), and 0 for one that
+    returns nothing."""
     chunk = max(RAY_CHUNK, -(-n_rays // (CHUNKS_PER_THREAD * thread_count())))
+    chunk = -(-chunk // align) * align
     found = []
     share_among_threads(lambda first, end, tid: found.append(walk(first, end, tid, *args)), n_rays, chunk)
     return sum(count for count in found if count is not None)

@@ -13,6 +13,7 @@ from ...geometry.gather import layout_nbytes, layout_rows
 from ...geometry.kdop import KDOP_NORMALS, kdop_surface_areas
 from ...geometry.kinds import TRIANGLE
 from ...ray_order import MIN_PACKET_RAYS, interleaving_pays, lane_packets_pay, packets_pay, sample_neighbours
+from ...ray_tiles import TILE_ROWS, image_row_length
 from ...stats import surface_area_stats
 from ..actions import COUNT, NEAREST
 from ..base import Accelerator, walk_rays
@@ -38,6 +39,7 @@ from .traverse_interleaved import (
 )
 from .traverse_packet import (
     LANE_ROWS,
+    SPAN,
     lane_packet_crossings_kernel,
     lane_packet_kernel,
     wide_packet_crossings_kernel,
@@ -285,7 +287,8 @@ class BoundingVolumeHierarchy(Accelerator):
         if walk is not None:
             return walk_rays(walk, len(batch.origins), *tree, *batch, any_hit, *self._wide_stacks(rows),
                              thread_rows((rows, WIDTH)), thread_rows((rows, LANE_ROWS * PACKET)),
-                             thread_rows((rows, BOUND_VALUES)), thread_rows((rows, PACKET), np.int64), action)
+                             thread_rows((rows, BOUND_VALUES)), thread_rows((rows, PACKET), np.int64),
+                             image_row_length(batch.directions, SPAN // TILE_ROWS), action, align=SPAN)
         if self.options.get("interleave", True) and interleaving_pays(batch, *self.scene_box, self.nbytes, sampled,
                                                                        caches=_INTERLEAVE_CACHES):
             walk = _INTERLEAVED_WALKS.get(action.mode, interleaved_crossings_kernel)

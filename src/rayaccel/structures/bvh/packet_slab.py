@@ -208,32 +208,35 @@ def enter_children_by_lane(typingctx, records, node, state, lanes, entry):
 
 
 @intrinsic
-def load_packet(typingctx, origins, directions, first, state, bounds):
-    """Load the :data:`PACKET` rays from row ``first`` of ``origins`` and ``directions`` ((n, 3)
-    C-contiguous float64 or float32) into rows 0-5 of ``state`` (origins, then inverse directions, one
-    lane a ray), in vector instructions: three loads of eight numbers per array, shuffled
-    from rows to lanes, and three vector divisions. Returns 1 when the rays point to both
+def load_packet(typingctx, origins, directions, first, second, state, bounds):
+    """Load the :data:`PACKET` rays of rows ``first`` to ``first + 3`` and ``second`` to ``second + 3``
+    (``first + 4`` for eight consecutive rays, a row's length on for a tile of an image,
+    :mod:`rayaccel.ray_tiles`) of ``origins`` and ``directions`` ((n, 3) C-contiguous float64 or
+    float32) into rows 0-5 of ``state`` (origins, then inverse directions, one lane a ray), in
+    vector instructions: two loads of twelve numbers per array, shuffled from rows to lanes, and
+    three vector divisions. Returns 1 when the rays point to both
     sides along some axis, else 0 after writing the packet's interval bounds (rows 0-14 of
     :data:`BOUND_VALUES`) into ``bounds``, as the scalar set-up of the packet walk computes them."""
     if not rays_readable(origins, directions):
         return None
-    signature = types.int64(origins, directions, first, state, bounds)
+    signature = types.int64(origins, directions, first, second, state, bounds)
 
     def codegen(context, builder, sig, args):
-        origin_array, direction_array, first_row, state_array, bounds_array = args
+        origin_array, direction_array, first_row, second_row, state_array, bounds_array = args
         intp = context.get_value_type(types.intp)
         double = ir.DoubleType()
         doubles = ir.VectorType(double, PACKET)
         row = context.cast(builder, first_row, sig.args[2], types.intp)
-        origin = rays_by_axis(context, builder, sig.args[0], origin_array, row)
-        direction = rays_by_axis(context, builder, sig.args[1], direction_array, row)
+        second_row = context.cast(builder, second_row, sig.args[3], types.intp)
+        origin = rays_by_axis(context, builder, sig.args[0], origin_array, row, second_row)
+        direction = rays_by_axis(context, builder, sig.args[1], direction_array, row, second_row)
         ones = ir.Constant(doubles, [1.0] * PACKET)
         inverse = [builder.fdiv(ones, d) for d in direction]
-        state_data = builder.bitcast(context.make_array(sig.args[3])(context, builder, state_array).data,
+        state_data = builder.bitcast(context.make_array(sig.args[4])(context, builder, state_array).data,
                                      doubles.as_pointer())
         for k, vector in enumerate(origin + inverse):
             builder.store(vector, builder.gep(state_data, [ir.Constant(intp, k)]), align=8)
-        bounds_data = context.make_array(sig.args[4])(context, builder, bounds_array).data
+        bounds_data = context.make_array(sig.args[5])(context, builder, bounds_array).data
         zero = ir.Constant(doubles, [0.0] * PACKET)
         mixed = ir.IntType(1)(0)
         for axis in range(3):
@@ -276,9 +279,11 @@ def _reduce_lanes(builder, vector, compare):
 
 
 @intrinsic
-def bound_span(typingctx, origins, directions, first, packets, bounds):
-    """The interval bounds of the ``PACKET * packets`` rays from row ``first`` of ``origins`` and
-    ``directions`` ((n, 3) C-contiguous float64 or float32), for :func:`enter_children_interval`: returns
+def bound_span(typingctx, origins, directions, first, second, packets, bounds):
+    """The interval bounds of ``PACKET * packets`` rays of ``origins`` and ``directions`` ((n, 3)
+    C-contiguous float64 or float32), the first half from row ``first`` on and the second from
+    row ``second`` on (the rows that follow, or the next image row's for tiles,
+    :mod:`rayaccel.ray_tiles`), for :func:`enter_children_interval`: returns
     0 after writing rows 0-14 of :data:`BOUND_VALUES` into ``bounds``, or 1, leaving ``bounds``
     unfinished, when along some axis the directions are not all of one strict sign. Each
     group of eight rows is read as three vectors of eight coordinates and folded into running
@@ -287,18 +292,19 @@ def bound_span(typingctx, origins, directions, first, packets, bounds):
     correctly rounded division is monotone, so each ray's own inverse lies between them."""
     if not rays_readable(origins, directions):
         return None
-    signature = types.int64(origins, directions, first, packets, bounds)
+    signature = types.int64(origins, directions, first, second, packets, bounds)
 
     def codegen(context, builder, sig, args):
-        origin_array, direction_array, first_row, packet_count, bounds_array = args
+        origin_array, direction_array, first_row, second_row, packet_count, bounds_array = args
         intp = context.get_value_type(types.intp)
         double = ir.DoubleType()
         doubles = ir.VectorType(double, PACKET)
         row = context.cast(builder, first_row, sig.args[2], types.intp)
-        count = context.cast(builder, packet_count, sig.args[3], types.intp)
-        starts = [builder.gep(context.make_array(array_type)(context, builder, array).data,
-                              [builder.mul(row, ir.Constant(intp, 3))])
-                  for array_type, array in ((sig.args[0], origin_array), (sig.args[1], direction_array))]
+        second_start = context.cast(builder, second_row, sig.args[3], types.intp)
+        count = context.cast(builder, packet_count, sig.args[4], types.intp)
+        half = builder.lshr(count, ir.Constant(intp, 1))
+        data = [context.make_array(array_type)(context, builder, array).data
+                for array_type, array in ((sig.args[0], origin_array), (sig.args[1], direction_array))]
         highest = ir.Constant(doubles, [float("inf")] * PACKET)
         lowest = ir.Constant(doubles, [float("-inf")] * PACKET)
         running = {}
@@ -309,9 +315,13 @@ def bound_span(typingctx, origins, directions, first, packets, bounds):
                     builder.store(start, slot)
                     running[array, part, compare] = slot
         with cgutils.for_range(builder, count) as loop:
-            offset = builder.mul(loop.index, ir.Constant(intp, 3 * PACKET))
+            in_first = builder.icmp_signed("<", loop.index, half)
+            group_row = builder.select(in_first, builder.add(row, builder.mul(loop.index, ir.Constant(intp, PACKET))),
+                                       builder.add(second_start, builder.mul(builder.sub(loop.index, half),
+                                                                             ir.Constant(intp, PACKET))))
+            offset = builder.mul(group_row, ir.Constant(intp, 3))
             for array in range(2):
-                block = builder.gep(starts[array], [offset])
+                block = builder.gep(data[array], [offset])
                 for part in range(3):
                     values = load_eight(builder, sig.args[array],
                                         builder.gep(block, [ir.Constant(intp, PACKET * part)]))
@@ -329,7 +339,7 @@ def bound_span(typingctx, origins, directions, first, packets, bounds):
                 combined = builder.select(builder.fcmp_ordered(compare, vector, combined), vector, combined)
             return _reduce_lanes(builder, combined, compare)
 
-        bounds_data = context.make_array(sig.args[4])(context, builder, bounds_array).data
+        bounds_data = context.make_array(sig.args[5])(context, builder, bounds_array).data
         zero = ir.Constant(double, 0.0)
         one = ir.Constant(double, 1.0)
         unsigned = ir.IntType(1)(0)

@@ -61,9 +61,10 @@ def _pick(builder, axis, vectors):
 
 
 @intrinsic
-def set_up_shear(typingctx, origins, directions, first, state):
+def set_up_shear(typingctx, origins, directions, first, second, state):
     """The triangle test's constants (:func:`rayaccel.geometry.primitive.ray_setup`) of the
-    :data:`PACKET` rays from row ``first`` of ``origins`` and ``directions``, in vector
+    :data:`PACKET` rays of rows ``first`` to ``first + 3`` and ``second`` to ``second + 3`` (as
+    :func:`.packet_slab.load_packet` takes them) of ``origins`` and ``directions``, in vector
     instructions, written into ``state`` from row :data:`SHEAR_ROW` on as
     :func:`hits_by_lane` reads them: each ray's shear ``sx``, ``sy``, its origin on the axes
     ``kx``, ``ky``, ``kz``, then ``sz``. The axes are those of
@@ -75,17 +76,18 @@ def set_up_shear(typingctx, origins, directions, first, state):
     shadow rays 1.03-1.10 times as fast, the full dragon's 0.99-1.04."""
     if not rays_readable(origins, directions):
         return None
-    signature = types.int64(origins, directions, first, state)
+    signature = types.int64(origins, directions, first, second, state)
 
     def codegen(context, builder, sig, args):
-        origin_array, direction_array, first_row, state_array = args
+        origin_array, direction_array, first_row, second_row, state_array = args
         intp = context.get_value_type(types.intp)
         int64 = ir.IntType(64)
         mask_type = ir.IntType(PACKET)
         doubles = ir.VectorType(ir.DoubleType(), PACKET)
         row = context.cast(builder, first_row, sig.args[2], types.intp)
-        origin = rays_by_axis(context, builder, sig.args[0], origin_array, row)
-        direction = rays_by_axis(context, builder, sig.args[1], direction_array, row)
+        second_row = context.cast(builder, second_row, sig.args[3], types.intp)
+        origin = rays_by_axis(context, builder, sig.args[0], origin_array, row, second_row)
+        direction = rays_by_axis(context, builder, sig.args[1], direction_array, row, second_row)
         ax, ay, az = (_fabs(builder, d) for d in direction)
         x_major = builder.and_(builder.fcmp_ordered(">=", ax, ay), builder.fcmp_ordered(">=", ax, az))
         y_major = builder.and_(builder.not_(x_major), builder.fcmp_ordered(">=", ay, az))
@@ -109,7 +111,7 @@ def set_up_shear(typingctx, origins, directions, first, state):
         sz = builder.fdiv(ir.Constant(doubles, [1.0] * PACKET), d_kz)
         rows = (builder.fmul(_pick(builder, kx, direction), sz), builder.fmul(_pick(builder, ky, direction), sz),
                 _pick(builder, kx, origin), _pick(builder, ky, origin), _pick(builder, kz, origin), sz)
-        data = builder.bitcast(context.make_array(sig.args[3])(context, builder, state_array).data,
+        data = builder.bitcast(context.make_array(sig.args[4])(context, builder, state_array).data,
                                doubles.as_pointer())
         for k, vector in enumerate(rows):
             builder.store(vector, builder.gep(data, [ir.Constant(intp, SHEAR_ROW + k)]), align=8)

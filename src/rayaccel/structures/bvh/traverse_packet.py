@@ -71,6 +71,7 @@ from ..._validate import unusable_rays
 from ...geometry.gather import corner
 from ...geometry.kinds import TRIANGLE
 from ...geometry.primitive import ray_setup
+from ...ray_tiles import TILE_COLUMNS, TILE_ROWS, lane_ray, tile_ray
 from ...rays import ray_at, ray_limit, result_row
 from ..actions import NEAREST, finish_misses_in_mode, finish_ray_in_mode, is_closer
 from .packet_slab import (
@@ -166,16 +167,17 @@ def _keep_lane_hit(state, best_prim, r, best_t, prim_r, best_u, best_v):
 
 @inline_kernel
 def _leaf_lane_after_lane(mode, action, hit_slot, kind, geom, prim_order, first, count, origins, directions,
-                          packet_first, lanes, done, state, best_prim, any_hit):
+                          packet_first, packet_second, lanes, done, state, best_prim, any_hit):
     """Visit the ``count`` primitives of a leaf from row ``first`` on with each ray of ``lanes`` in
-    turn, as the single-ray walk does (:func:`.traverse_wide.visit_leaf`); returns ``done`` with the
-    lanes of an any-hit walk that found a hit added, and whether some lane's best hit changed."""
+    turn, as the single-ray walk does (:func:`.traverse_wide.visit_leaf`), the packet's rays those of
+    :func:`rayaccel.ray_tiles.lane_ray`; returns ``done`` with the lanes of an any-hit walk that
+    found a hit added, and whether some lane's best hit changed."""
     improved = False
     remaining = lanes
     while remaining != 0:
         r = highest_bit(remaining)
         remaining ^= 1 << r
-        i = packet_first + r
+        i = lane_ray(packet_first, r, packet_second)
         ox, oy, oz, dx, dy, dz = ray_at(origins, directions, i)
         ray = ray_setup(ox, oy, oz, dx, dy, dz)
         best_t, prim_r, best_u, best_v, _ = visit_leaf(mode, action, result_row(hit_slot, i), kind, geom, prim_order,
@@ -217,16 +219,18 @@ def _leaf_by_triangle(geom, prim_order, first, count, lanes, done, kx, ky, kz, s
 
 
 @inline_kernel
-def _root_culls_span(records, origins, directions, t_min, t_max, span_first, bounds, child_entry):
-    """Whether the :data:`SPAN` rays from ``span_first``, whose directions have one strict sign
-    along each axis, miss every child box of the root, by their interval bounds."""
-    if bound_span(origins, directions, span_first, SPAN // PACKET, bounds) != 0:
+def _root_culls_span(records, origins, directions, t_min, t_max, span_first, span_second, bounds, child_entry):
+    """Whether the :data:`SPAN` rays of the runs from ``span_first`` and ``span_second`` (half of
+    them each), whose directions have one strict sign along each axis, miss every child box of
+    the root, by their interval bounds."""
+    if bound_span(origins, directions, span_first, span_second, SPAN // PACKET, bounds) != 0:
         return False
     t_low, t_high = ray_limit(t_min, span_first), ray_limit(t_max, span_first)
     if t_min.shape[0] > 1 or t_max.shape[0] > 1:
-        for i in range(span_first + 1, span_first + SPAN):
-            t_low = min(t_low, ray_limit(t_min, i))
-            t_high = max(t_high, ray_limit(t_max, i))
+        for run in (span_first, span_second):
+            for i in range(run, run + SPAN // 2):
+                t_low = min(t_low, ray_limit(t_min, i))
+                t_high = max(t_high, ray_limit(t_max, i))
     bounds[BOUND_T_MIN] = t_low
     bounds[BOUND_BEST] = t_high
     return enter_children_interval(records, 0, bounds, child_entry) == 0
@@ -235,49 +239,67 @@ def _root_culls_span(records, origins, directions, t_min, t_max, span_first, bou
 @inline_kernel
 def _packet_walk(ray_first, ray_end, tid, records, links, prim_order, kind, geom, origins, directions, t_min, t_max,
                  hit_slot, any_hit, stack_link, stack_count, stack_t, entry, lanes_state, bounds_state,
-                 lanes_prim, by_lane, mode, action):
+                 lanes_prim, row_length, by_lane, mode, action):
     """Trace rays ``ray_first`` to ``ray_end - 1`` in packets of :data:`PACKET` consecutive rays
     (the last one partial), with the stacks, child entries, lane state and packet bounds of
     row ``tid``, each stack entry's lanes kept above its primitive count in ``stack_count``;
     ``geom`` in leaf order, ``links`` the records seen as int32 (see :mod:`.traverse_wide`).
-    Each primitive a ray meets gets the leaf action of ``mode`` (:mod:`..actions`). The rays of
-    each span are checked first (:func:`rayaccel._validate.unusable_rays`), just before the walk
-    reads them again; a span holding an unusable ray is
-    left unwalked, answered as misses. Returns how many unusable rays there were."""
+    With a ``row_length`` other than 0 the rays are an image's rows of that length (a multiple
+    of ``SPAN // 2``), ``ray_first`` and ``ray_end`` places in its tile order
+    (:func:`rayaccel.ray_tiles.tile_ray`): a span is then eight tiles side by side, two runs of
+    ``SPAN // 2`` rays a row apart, and a packet one tile, read in place. Each primitive a ray
+    meets gets the leaf action of ``mode`` (:mod:`..actions`). The rays of each span are checked
+    first (:func:`rayaccel._validate.unusable_rays`), just before the walk reads them again; a span
+    holding an unusable ray is left unwalked, answered as misses. Returns how many unusable rays
+    there were."""
     child_entry = entry[tid]
     state = lanes_state[tid]
     bounds = bounds_state[tid]
     best_prim = lanes_prim[tid]
     nearest_first = not any_hit and mode == NEAREST
     lane_triangles = mode == NEAREST and kind == TRIANGLE
+    tiled_rays = 0
+    if row_length > 0:
+        tiled_rays = (origins.shape[0] // (TILE_ROWS * row_length)) * (TILE_ROWS * row_length)
     unusable = 0
-    for span_first in range(ray_first, ray_end, SPAN):
-        span_end = min(span_first + SPAN, ray_end)
-        unusable_here = unusable_rays(origins, directions, span_first, span_end)
-        if unusable_here:
+    for place in range(ray_first, ray_end, SPAN):
+        span_rays = min(SPAN, ray_end - place)
+        if place < tiled_rays:
+            span_first = tile_ray(place, row_length)
+            span_second = span_first + row_length
+            packet_step, lane_offset = TILE_COLUMNS, row_length
+        else:
+            span_first = place
+            span_second = place + SPAN // 2
+            packet_step, lane_offset = PACKET, TILE_COLUMNS
+        first_run = min(span_rays, SPAN // 2)
+        second_end = span_second + span_rays - first_run
+        unusable_here = (unusable_rays(origins, directions, span_first, span_first + first_run)
+                         + unusable_rays(origins, directions, span_second, second_end))
+        if unusable_here or (not by_lane and span_rays == SPAN and _root_culls_span(
+                records, origins, directions, t_min, t_max, span_first, span_second, bounds, child_entry)):
             unusable += unusable_here
-            finish_misses_in_mode(mode, action, hit_slot, span_first, span_end)
+            finish_misses_in_mode(mode, action, hit_slot, span_first, span_first + first_run)
+            finish_misses_in_mode(mode, action, hit_slot, span_second, second_end)
             continue
-        if not by_lane and span_end - span_first == SPAN and \
-                _root_culls_span(records, origins, directions, t_min, t_max, span_first, bounds, child_entry):
-            finish_misses_in_mode(mode, action, hit_slot, span_first, span_end)
-            continue
-        for packet_first in range(span_first, span_end, PACKET):
-            n_lanes = min(PACKET, ray_end - packet_first)
+        for packet in range(0, span_rays, PACKET):
+            packet_first = span_first + (packet // PACKET) * packet_step
+            packet_second = packet_first + lane_offset
+            n_lanes = min(PACKET, span_rays - packet)
             loaded = n_lanes == PACKET
             if loaded:
-                mixed = load_packet(origins, directions, packet_first, state, bounds) != 0
+                mixed = load_packet(origins, directions, packet_first, packet_second, state, bounds) != 0
             else:
                 mixed = False
                 for r in range(PACKET):
-                    i = packet_first + min(r, n_lanes - 1)
+                    i = lane_ray(packet_first, min(r, n_lanes - 1), packet_second)
                     for axis in range(3):
                         inverse = 1.0 / np.float64(directions[i, axis])
                         state[axis * PACKET + r] = origins[i, axis]
                         state[(axis + 3) * PACKET + r] = inverse
                         mixed |= (inverse >= 0.0) != (state[(axis + 3) * PACKET] >= 0.0)
             for r in range(PACKET):
-                i = packet_first + min(r, n_lanes - 1)
+                i = lane_ray(packet_first, min(r, n_lanes - 1), packet_second)
                 state[_T_MIN + r] = ray_limit(t_min, i)
                 state[_BEST + r] = ray_limit(t_max, i)
                 best_prim[r] = -1
@@ -348,7 +370,8 @@ def _packet_walk(ray_first, ray_end, tid, records, links, prim_order, kind, geom
                             break
                         first = stack_link[tid, sp]
                         if lane_triangles and not lanes_set_up:
-                            axes = set_up_shear(origins, directions, packet_first, state) if loaded else NOT_SHARED
+                            axes = set_up_shear(origins, directions, packet_first, packet_second, state) if loaded \
+                                else NOT_SHARED
                             shared_axes = axes != NOT_SHARED
                             kx, ky, kz = axes & 3, (axes >> 2) & 3, axes >> 4
                             lanes_set_up = True
@@ -358,7 +381,8 @@ def _packet_walk(ray_first, ray_end, tid, records, links, prim_order, kind, geom
                         else:
                             done, improved = _leaf_lane_after_lane(mode, action, hit_slot, kind, geom, prim_order,
                                                                    first, count, origins, directions, packet_first,
-                                                                   lanes, done, state, best_prim, any_hit)
+                                                                   packet_second, lanes, done, state, best_prim,
+                                                                   any_hit)
                         if any_hit and done == active:
                             sp = 0
                             break
@@ -370,49 +394,50 @@ def _packet_walk(ray_first, ray_end, tid, records, links, prim_order, kind, geom
                     if node < 0:
                         break
             for r in range(n_lanes):
-                finish_ray_in_mode(mode, action, result_row(hit_slot, packet_first + r), state[_BEST + r],
+                finish_ray_in_mode(mode, action, result_row(hit_slot, lane_ray(packet_first, r, packet_second)),
+                                   state[_BEST + r],
                                    best_prim[r], state[_U + r], state[_V + r])
     return unusable
 
 
 @chunk_kernel
 def wide_packet_kernel(ray_first, ray_end, tid, records, links, prim_order, kind, geom, origins, directions, t_min,
-                       t_max, hit_slot, any_hit, stack_link, stack_count, stack_t, entry, lanes_state,
-                       bounds_state, lanes_prim, action):
+                       t_max, hit_slot, any_hit, stack_link, stack_count, stack_t, entry, lanes_state, bounds_state,
+                       lanes_prim, row_length, action):
     """The closest-hit and any-hit packet walk (an action of mode ``NEAREST``; the other modes'
     code is pruned before it is compiled, as in :func:`.traverse_wide.wide_nearest_kernel`)."""
-    return _packet_walk(ray_first, ray_end, tid, records, links, prim_order, kind, geom, origins, directions,
-                        t_min, t_max, hit_slot, any_hit, stack_link, stack_count, stack_t, entry, lanes_state,
-                        bounds_state, lanes_prim, False, NEAREST, action)
+    return _packet_walk(ray_first, ray_end, tid, records, links, prim_order, kind, geom, origins, directions, t_min,
+                        t_max, hit_slot, any_hit, stack_link, stack_count, stack_t, entry, lanes_state, bounds_state,
+                        lanes_prim, row_length, False, NEAREST, action)
 
 
 @chunk_kernel
-def wide_packet_crossings_kernel(ray_first, ray_end, tid, records, links, prim_order, kind, geom, origins,
-                                 directions, t_min, t_max, hit_slot, any_hit, stack_link, stack_count, stack_t, entry,
-                                 lanes_state, bounds_state, lanes_prim, action):
+def wide_packet_crossings_kernel(ray_first, ray_end, tid, records, links, prim_order, kind, geom, origins, directions,
+                                 t_min, t_max, hit_slot, any_hit, stack_link, stack_count, stack_t, entry, lanes_state,
+                                 bounds_state, lanes_prim, row_length, action):
     """The packet walk for the other actions (counting, listing), compiled at their first use."""
-    return _packet_walk(ray_first, ray_end, tid, records, links, prim_order, kind, geom, origins, directions,
-                        t_min, t_max, hit_slot, any_hit, stack_link, stack_count, stack_t, entry, lanes_state,
-                        bounds_state, lanes_prim, False, action.mode, action)
+    return _packet_walk(ray_first, ray_end, tid, records, links, prim_order, kind, geom, origins, directions, t_min,
+                        t_max, hit_slot, any_hit, stack_link, stack_count, stack_t, entry, lanes_state, bounds_state,
+                        lanes_prim, row_length, False, action.mode, action)
 
 
 @chunk_kernel
 def lane_packet_kernel(ray_first, ray_end, tid, records, links, prim_order, kind, geom, origins, directions, t_min,
-                       t_max, hit_slot, any_hit, stack_link, stack_count, stack_t, entry, lanes_state,
-                       bounds_state, lanes_prim, action):
+                       t_max, hit_slot, any_hit, stack_link, stack_count, stack_t, entry, lanes_state, bounds_state,
+                       lanes_prim, row_length, action):
     """The closest-hit and any-hit walk of packets whose rays are tested lane by lane (the other
     modes' code pruned, as in :func:`wide_packet_kernel`)."""
-    return _packet_walk(ray_first, ray_end, tid, records, links, prim_order, kind, geom, origins, directions,
-                        t_min, t_max, hit_slot, any_hit, stack_link, stack_count, stack_t, entry, lanes_state,
-                        bounds_state, lanes_prim, True, NEAREST, action)
+    return _packet_walk(ray_first, ray_end, tid, records, links, prim_order, kind, geom, origins, directions, t_min,
+                        t_max, hit_slot, any_hit, stack_link, stack_count, stack_t, entry, lanes_state, bounds_state,
+                        lanes_prim, row_length, True, NEAREST, action)
 
 
 @chunk_kernel
-def lane_packet_crossings_kernel(ray_first, ray_end, tid, records, links, prim_order, kind, geom, origins,
-                                 directions, t_min, t_max, hit_slot, any_hit, stack_link, stack_count, stack_t, entry,
-                                 lanes_state, bounds_state, lanes_prim, action):
+def lane_packet_crossings_kernel(ray_first, ray_end, tid, records, links, prim_order, kind, geom, origins, directions,
+                                 t_min, t_max, hit_slot, any_hit, stack_link, stack_count, stack_t, entry, lanes_state,
+                                 bounds_state, lanes_prim, row_length, action):
     """The walk of packets tested lane by lane for the other actions (counting, listing), compiled
     at their first use."""
-    return _packet_walk(ray_first, ray_end, tid, records, links, prim_order, kind, geom, origins, directions,
-                        t_min, t_max, hit_slot, any_hit, stack_link, stack_count, stack_t, entry, lanes_state,
-                        bounds_state, lanes_prim, True, action.mode, action)
+    return _packet_walk(ray_first, ray_end, tid, records, links, prim_order, kind, geom, origins, directions, t_min,
+                        t_max, hit_slot, any_hit, stack_link, stack_count, stack_t, entry, lanes_state, bounds_state,
+                        lanes_prim, row_length, True, action.mode, action)
