@@ -9,8 +9,9 @@ from conftest import assert_counts_and_lists_match, assert_same_hits, random_ray
 
 import rayaccel as ra
 from rayaccel.ray_tiles import TILE_COLUMNS, TILE_ROWS, image_row_length, lane_ray, tile_ray
-from rayaccel.structures.bvh import accelerator
+from rayaccel.structures.bvh import accelerator as bvh_accelerator
 from rayaccel.structures.bvh.traverse_packet import SPAN
+from rayaccel.structures.kdtree import accelerator as kdtree_accelerator
 
 
 def image_rays(scene, width, height, fov=40.0):
@@ -55,29 +56,37 @@ def test_tile_order_visits_every_ray_of_whole_row_pairs_once(row_length):
 
 @pytest.fixture
 def tiles_seen(monkeypatch):
-    """The row lengths the BVH's packet walks were given, call by call."""
+    """The row lengths the packet walks of the BVH and the kd-tree were given, call by call."""
     seen = []
 
-    def spy(directions, multiple):
+    def spy(directions, multiple=TILE_COLUMNS):
         seen.append(image_row_length(directions, multiple))
         return seen[-1]
 
-    monkeypatch.setattr(accelerator, "image_row_length", spy)
+    for module in (bvh_accelerator, kdtree_accelerator):
+        monkeypatch.setattr(module, "image_row_length", spy)
     return seen
 
 
-@pytest.mark.parametrize("width, height", [(64, 48), (96, 23), (32, 33)])
+def packet_structures(scene):
+    return {"bvh-binned": ra.build(scene, "bvh-binned"), "kdtree": ra.build(scene, "kdtree")}
+
+
+@pytest.mark.parametrize("method", ["bvh-binned", "kdtree"])
+@pytest.mark.parametrize("width, height, fov", [(64, 48, 30.0), (128, 65, 40.0), (96, 23, 70.0), (32, 33, 70.0)])
 @pytest.mark.parametrize("limits", ["shared", "per ray"])
-def test_tiled_camera_rays_match_brute_force(small_dragon, tiles_seen, width, height, limits):
-    """Images with whole pairs of rows and one with a last row left over, which walks as given;
-    a wide view so that whole spans miss the model; per-ray limits read in tile order too."""
-    origins, directions = image_rays(small_dragon, width, height, fov=70.0)
+def test_tiled_camera_rays_match_brute_force(small_dragon, tiles_seen, method, width, height, fov, limits):
+    """Images with whole pairs of rows and ones with a last row left over, which walks as given;
+    narrow views, whose packets are bounded as a whole, and wide ones, whose neighbours head too
+    far apart for that and are tested lane by lane; whole spans that miss the model; per-ray
+    limits read in tile order too."""
+    origins, directions = image_rays(small_dragon, width, height, fov=fov)
     t_min, t_max = 0.0, np.inf
     if limits == "per ray":
         rng = np.random.default_rng(5)
         t_min = rng.uniform(0.0, 0.5, len(origins))
         t_max = np.where(rng.random(len(origins)) < 0.5, np.inf, rng.uniform(0.6, 1.2, len(origins)))
-    brute, packets = ra.build(small_dragon, "none"), ra.build(small_dragon, "bvh-binned")
+    brute, packets = ra.build(small_dragon, "none"), ra.build(small_dragon, method)
     reference = brute.intersect(origins, directions, t_min, t_max)
     assert reference.hit.any() and not reference.hit.all()
     assert_same_hits(reference, packets.intersect(origins, directions, t_min, t_max))
@@ -87,6 +96,7 @@ def test_tiled_camera_rays_match_brute_force(small_dragon, tiles_seen, width, he
 
 
 def test_tiled_float32_rays_match_their_float64_copy(small_dragon, tiles_seen):
+    """The BVH reads float32 rays as they are, in tiles too."""
     origins, directions = image_rays(small_dragon, 64, 40)
     narrow_o, narrow_d = origins.astype(np.float32), directions.astype(np.float32)
     bvh = ra.build(small_dragon, "bvh-binned")
@@ -97,6 +107,7 @@ def test_tiled_float32_rays_match_their_float64_copy(small_dragon, tiles_seen):
 
 @pytest.mark.parametrize("place", ["first tile", "second row of a tile", "last pair of rows"])
 def test_an_unusable_ray_in_a_tile_is_named(small_dragon, tiles_seen, place):
+    """The BVH's packet walk checks the rays it reads, in tiles too."""
     origins, directions = image_rays(small_dragon, 64, 40)
     bad = {"first tile": 1, "second row of a tile": 64 + 2, "last pair of rows": 38 * 64 + 37}[place]
     directions[bad] = 0.0
@@ -119,3 +130,19 @@ def test_tiles_follow_chunks_of_any_length(small_dragon, tiles_seen, monkeypatch
     assert_same_hits(single.intersect(origins, directions), packets.intersect(origins, directions))
     np.testing.assert_array_equal(single.occluded(origins, directions), packets.occluded(origins, directions))
     assert tiles_seen == [64, 64]
+
+
+@pytest.mark.parametrize("width, height", [(36, 30), (64, 40)])
+def test_kdtree_tiles_rows_of_any_multiple_of_four(small_dragon, tiles_seen, monkeypatch, width, height):
+    """The kd-tree's packets have no spans: rows of any multiple of four pixels go in tiles, over
+    chunks of any length; packets whose rays head apart (rays through a wide view) take the single
+    walk, each of their two rows."""
+    from rayaccel.structures import base
+    monkeypatch.setattr(base, "RAY_CHUNK", 100)
+    monkeypatch.setattr(base, "CHUNKS_PER_THREAD", 5)
+    origins, directions = image_rays(small_dragon, width, height, fov=120.0)
+    single = ra.build(small_dragon, "kdtree", packets=False)
+    packets = ra.build(small_dragon, "kdtree")
+    assert_same_hits(single.intersect(origins, directions), packets.intersect(origins, directions))
+    np.testing.assert_array_equal(single.occluded(origins, directions), packets.occluded(origins, directions))
+    assert tiles_seen == [width, width]

@@ -46,12 +46,19 @@ def rays_by_axis(context, builder, array_type, array, row, second=None):
     to_lanes = [ir.Constant(ir.VectorType(ir.IntType(32), LANES), [3 * lane + axis for lane in range(LANES)])
                 for axis in range(3)]
     if second is not None:
-        half = LANES // 2
-        halves = [_load_rows(builder, array_type, builder.gep(data, [builder.mul(first, ir.Constant(intp, 3))]), half)
-                  for first in (row, second)]
-        whole = builder.shuffle_vector(halves[0], halves[1],
-                                       ir.Constant(ir.VectorType(ir.IntType(32), 6 * half), list(range(6 * half))))
-        return [builder.shuffle_vector(whole, whole, lanes) for lanes in to_lanes]
+        starts = [builder.gep(data, [builder.mul(first, ir.Constant(intp, 3))]) for first in (row, second)]
+        eights = [load_eight(builder, array_type, start) for start in starts]
+        fours = [_load_four(builder, array_type, builder.gep(start, [ir.Constant(intp, LANES)])) for start in starts]
+        widen = ir.Constant(ir.VectorType(ir.IntType(32), LANES), list(range(4)) + [4] * 4)
+        fours = [builder.shuffle_vector(four, four, widen) for four in fours]
+        low = builder.shuffle_vector(eights[0], fours[0], ir.Constant(ir.VectorType(ir.IntType(32), 2 * LANES),
+                                                                       list(range(2 * LANES))))
+        high = builder.shuffle_vector(eights[1], fours[1], ir.Constant(ir.VectorType(ir.IntType(32), 2 * LANES),
+                                                                        list(range(2 * LANES))))
+        order = [k for k in range(12)] + [16 + k for k in range(12)]
+        return [builder.shuffle_vector(low, high, ir.Constant(ir.VectorType(ir.IntType(32), LANES),
+                                                              [order[3 * lane + axis] for lane in range(LANES)]))
+                for axis in range(3)]
     start = builder.gep(data, [builder.mul(row, ir.Constant(intp, 3))])
     parts = [load_eight(builder, array_type, builder.gep(start, [ir.Constant(intp, LANES * k)])) for k in range(3)]
     sixteen = ir.Constant(ir.VectorType(ir.IntType(32), 2 * LANES), list(range(2 * LANES)))
@@ -60,10 +67,9 @@ def rays_by_axis(context, builder, array_type, array, row, second=None):
     return [builder.shuffle_vector(low, high, lanes) for lanes in to_lanes]
 
 
-def _load_rows(builder, array_type, pointer, rows):
-    """The ``3 * rows`` numbers of ``rows`` consecutive rays from ``pointer`` as one vector of float64."""
-    count = 3 * rows
+def _load_four(builder, array_type, pointer):
+    """Four consecutive numbers of a float64 or float32 array from ``pointer`` as a vector of four float64."""
     if array_type.dtype == types.float64:
-        return builder.load(builder.bitcast(pointer, ir.VectorType(ir.DoubleType(), count).as_pointer()), align=8)
-    floats = builder.load(builder.bitcast(pointer, ir.VectorType(ir.FloatType(), count).as_pointer()), align=4)
-    return builder.fpext(floats, ir.VectorType(ir.DoubleType(), count))
+        return builder.load(builder.bitcast(pointer, ir.VectorType(ir.DoubleType(), 4).as_pointer()), align=8)
+    floats = builder.load(builder.bitcast(pointer, ir.VectorType(ir.FloatType(), 4).as_pointer()), align=4)
+    return builder.fpext(floats, ir.VectorType(ir.DoubleType(), 4))

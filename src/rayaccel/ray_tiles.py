@@ -3,23 +3,27 @@
 A packet walk (:mod:`.structures.bvh.traverse_packet`) bounds eight rays together and
 culls a node only where all of them miss it, so the tighter the eight, the more it culls
 and the later its rays part. A user's camera rays come row after row; eight consecutive
-ones span eight pixels of a row, four by two span four columns of two rows, whose
-directions spread about half as far. Reading an image's rays in tiles of
-:data:`TILE_COLUMNS` by :data:`TILE_ROWS` is Wald, Slusallek, Benthin & Wagner's
-("Interactive Rendering with Coherent Ray Tracing", Eurographics 2001), who trace
-primary rays in square packets; Embree's tutorials render in tiles for the same reason.
-The answers do not change, only which rays share a packet: each ray's hit is still
-written to its own row.
+ones span eight pixels of a row, a tile of :data:`TILE_COLUMNS` by :data:`TILE_ROWS`
+four columns of two rows, whose directions spread about half as far. Packets of
+neighbouring pixels rather than of a row's are how Wald, Slusallek, Benthin & Wagner
+("Interactive Rendering with Coherent Ray Tracing", Eurographics 2001) trace primary
+rays. The answers do not change, only which rays share a packet: each ray's hit is
+still written to its own row.
 
 :func:`image_row_length` recognises such a batch from its directions: neighbouring
 rays of a row step alike, the step jumps back at the end of each row, and four by two
-of its rays then spread less than eight in a row. The packet walk reads the rays of
-each span (eight packets) in tile order (:func:`tile_ray`) into a buffer of its
-thread (:func:`gather_span`), so that it loads them as it loads consecutive rays.
+of its rays then spread less than eight in a row. The packet walk then takes the
+places of the tile order (:func:`tile_ray`) as its threads' chunks, and reads each
+packet in place, lanes 0-3 from one row and 4-7 from the next (:func:`lane_ray`).
 
-Measured before this module, with the rays of 1024^2 pixels put in tile order outside
-the call (bvh-binned, two threads, medians of seven rounds, time in rows over time in
-tiles): full dragon closest hit 1.18, any hit 1.20; forest-small-chair 1.17 and 1.10.
+With the 1024^2 camera rays put in tile order before the call (bvh-binned, two
+threads, medians of seven rounds, time as given over time in tiles): full dragon
+closest hit 1.18, any hit 1.20; forest-small-chair 1.17 and 1.10. The walk reading
+tiles in place from the rows as given: full dragon 1.12 / 1.15, forest 1.04 / 0.99
+(nine rounds, the rays put in tile order before the call 1.17 / 1.17 and 1.17 / 1.12
+in the same run). Copying each span's rays into a buffer of the thread in tile order
+instead cost more than it gained (full dragon 1.01 / 1.05, forest 0.86 / 0.67, with a
+slower test for the row length then).
 """
 
 from __future__ import annotations

@@ -237,6 +237,15 @@ def _root_culls_span(records, origins, directions, t_min, t_max, span_first, spa
 
 
 @inline_kernel
+def _span_run(span_first, span_second, span_rays, run):
+    """The rays ``(first, end)`` of run ``run`` (0 or 1) of a span of ``span_rays`` rays whose halves
+    start at ``span_first`` and ``span_second``."""
+    if run == 0:
+        return span_first, span_first + min(span_rays, SPAN // 2)
+    return span_second, span_second + max(0, span_rays - SPAN // 2)
+
+
+@inline_kernel
 def _packet_walk(ray_first, ray_end, tid, records, links, prim_order, kind, geom, origins, directions, t_min, t_max,
                  hit_slot, any_hit, stack_link, stack_count, stack_t, entry, lanes_state, bounds_state,
                  lanes_prim, row_length, by_lane, mode, action):
@@ -259,28 +268,39 @@ def _packet_walk(ray_first, ray_end, tid, records, links, prim_order, kind, geom
     nearest_first = not any_hit and mode == NEAREST
     lane_triangles = mode == NEAREST and kind == TRIANGLE
     tiled_rays = 0
+    next_tiled = 0
+    column = 0
     if row_length > 0:
         tiled_rays = (origins.shape[0] // (TILE_ROWS * row_length)) * (TILE_ROWS * row_length)
+        if ray_first < tiled_rays:
+            next_tiled = tile_ray(ray_first, row_length)
+            column = next_tiled % row_length
     unusable = 0
     for place in range(ray_first, ray_end, SPAN):
         span_rays = min(SPAN, ray_end - place)
         if place < tiled_rays:
-            span_first = tile_ray(place, row_length)
+            span_first = next_tiled
             span_second = span_first + row_length
             packet_step, lane_offset = TILE_COLUMNS, row_length
+            next_tiled += SPAN // TILE_ROWS
+            column += SPAN // TILE_ROWS
+            if column == row_length:
+                column = 0
+                next_tiled += (TILE_ROWS - 1) * row_length
         else:
             span_first = place
             span_second = place + SPAN // 2
             packet_step, lane_offset = PACKET, TILE_COLUMNS
-        first_run = min(span_rays, SPAN // 2)
-        second_end = span_second + span_rays - first_run
-        unusable_here = (unusable_rays(origins, directions, span_first, span_first + first_run)
-                         + unusable_rays(origins, directions, span_second, second_end))
+        unusable_here = 0
+        for run in range(TILE_ROWS):
+            run_first, run_end = _span_run(span_first, span_second, span_rays, run)
+            unusable_here += unusable_rays(origins, directions, run_first, run_end)
         if unusable_here or (not by_lane and span_rays == SPAN and _root_culls_span(
                 records, origins, directions, t_min, t_max, span_first, span_second, bounds, child_entry)):
             unusable += unusable_here
-            finish_misses_in_mode(mode, action, hit_slot, span_first, span_first + first_run)
-            finish_misses_in_mode(mode, action, hit_slot, span_second, second_end)
+            for run in range(TILE_ROWS):
+                run_first, run_end = _span_run(span_first, span_second, span_rays, run)
+                finish_misses_in_mode(mode, action, hit_slot, run_first, run_end)
             continue
         for packet in range(0, span_rays, PACKET):
             packet_first = span_first + (packet // PACKET) * packet_step

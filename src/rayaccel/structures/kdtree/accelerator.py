@@ -14,6 +14,7 @@ from ..._validate import check_flag, check_number
 from ...geometry.gather import layout_nbytes
 from ...geometry.kinds import TRIANGLE
 from ...ray_order import MIN_PACKET_RAYS, interleaving_pays, lane_packets_pay, packets_pay, sample_neighbours
+from ...ray_tiles import image_row_length
 from ...stats import box_area, surface_area_stats
 from ..actions import NEAREST
 from ..base import Accelerator, walk_rays
@@ -309,8 +310,8 @@ class KdTree(Accelerator):
                 walk_rays(walk, n_rays, *rays, *self._stacks(rows), thread_rows((rows, RAY_ROW)),
                           thread_rows((rows, self.max_depth + 2), np.int64),
                           thread_rows((rows, self.max_depth + 2, 2 * PACKET)),
-                          thread_rows((rows, PACKET_ROWS * PACKET)), thread_rows((rows, PACKET), np.int64), action,
-                          work)
+                          thread_rows((rows, PACKET_ROWS * PACKET)), thread_rows((rows, PACKET), np.int64),
+                          image_row_length(batch.directions), action, work, align=PACKET)
             elif walk is interleaved_closest_kernel:
                 walk_rays(walk, n_rays, *rays, *self._stacks(rows * SLOTS), SLOTS,
                           thread_rows((rows, SLOTS, SLOT_INTS), np.int64), thread_rows((rows, SLOTS, SLOT_FLOATS)),

@@ -38,6 +38,7 @@ from ..._jit import chunk_kernel, inline_kernel, unsigned
 from ..._ray_lanes import LANES
 from ...geometry.box import clip_to_box
 from ...geometry.primitive import ray_setup
+from ...ray_tiles import TILE_COLUMNS, TILE_ROWS, lane_ray, tile_ray
 from ...rays import ray_limit, result_row
 from ..actions import NEAREST, finish_ray_in_mode, intersect_references
 from ..base import EXIT_MARGIN, settled_before
@@ -63,8 +64,9 @@ directions by axis, their intervals in the current cell, their ``t_min`` and bes
 
 
 @inline_kernel
-def _load_packet(lo, hi, origins, directions, t_min, t_max, packet_first, n_lanes, state, best_prim):
-    """Load the rays of a packet into ``state`` and clip them to the tree's box: ``(lanes,
+def _load_packet(lo, hi, origins, directions, t_min, t_max, packet_first, packet_second, n_lanes, state, best_prim):
+    """Load the rays of a packet (:func:`rayaccel.ray_tiles.lane_ray`) into ``state`` and clip them
+    to the tree's box: ``(lanes,
     positive, coherent)``, the lanes whose ray meets the box, the sign of each axis's
     direction (bit ``axis`` set where positive) and whether all rays share those signs, each
     direction component with a finite reciprocal (no zero or subnormal one)."""
@@ -78,7 +80,7 @@ def _load_packet(lo, hi, origins, directions, t_min, t_max, packet_first, n_lane
         state[_U + r] = 0.0
         state[_V + r] = 0.0
     for r in range(n_lanes):
-        i = packet_first + r
+        i = lane_ray(packet_first, r, packet_second)
         ray_t_min, ray_t_max = ray_limit(t_min, i), ray_limit(t_max, i)
         state[_T_MIN + r] = ray_t_min
         state[_BEST + r] = ray_t_max
@@ -190,7 +192,7 @@ def _pop_lanes(state, best_prim, stack_node, stack_lanes, stack_t, tid, sp, done
 
 @inline_kernel
 def _visit_leaf_lanes(action, hit_slot, first, end, leaf_prims, mailbox, tid, ray_id_base, kind, geom, origins,
-                      directions, packet_first, lanes, done, state, best_prim, any_hit):
+                      directions, packet_first, packet_second, lanes, done, state, best_prim, any_hit):
     """Test the leaf's references ``first`` to ``end - 1`` with each ray of ``lanes`` in turn, as
     the single-ray walk does (each ray its own mailbox stamp, where there is a mailbox); returns
     ``done`` with the lanes of an any-hit walk that found a hit."""
@@ -198,7 +200,7 @@ def _visit_leaf_lanes(action, hit_slot, first, end, leaf_prims, mailbox, tid, ra
     while remaining != 0:
         r = highest_bit(remaining)
         remaining ^= 1 << r
-        i = packet_first + r
+        i = lane_ray(packet_first, r, packet_second)
         ray = ray_setup(origins[i, 0], origins[i, 1], origins[i, 2], directions[i, 0], directions[i, 1],
                         directions[i, 2])
         best_t, prim, best_u, best_v, _, _ = intersect_references(
@@ -217,23 +219,43 @@ def _visit_leaf_lanes(action, hit_slot, first, end, leaf_prims, mailbox, tid, ra
 @chunk_kernel
 def kdtree_packet_kernel(ray_first, ray_end, tid, lo, hi, node_planes, node_links, leaf_prims, kind, geom, origins,
                          directions, t_min, t_max, hit_slot, any_hit, mailbox, ray_id_base, stack_node, stack_t,
-                         inv_dir, packet_lanes, packet_t, lanes_state, lanes_prim, action, work):
+                         inv_dir, packet_lanes, packet_t, lanes_state, lanes_prim, row_length, action, work):
     """The closest-hit and any-hit walk (an action of mode ``NEAREST``) of rays ``ray_first`` to
-    ``ray_end - 1`` in packets of :data:`PACKET` consecutive rays, the last one partial; a packet
-    without a common near side takes the single walk (:func:`.traverse.walk_singly`, with
+    ``ray_end - 1`` in packets of :data:`PACKET` consecutive rays, the last one partial, or, with a
+    ``row_length`` other than 0, of the places ``ray_first`` to ``ray_end - 1`` of the tile order of
+    an image with rows of that length (:func:`rayaccel.ray_tiles.tile_ray`), a packet a tile; a
+    packet without a common near side takes the single walk (:func:`.traverse.walk_singly`, with
     ``stack_node``, ``stack_t`` and ``inv_dir``). A packet's stack is ``stack_node``, ``packet_lanes``
     (threads, depth) int64 and ``packet_t`` (threads, depth, 2 * PACKET), its rays' state
     ``lanes_state`` (threads, PACKET_ROWS * PACKET) and ``lanes_prim`` (threads, PACKET) int64."""
     state = lanes_state[tid]
     best_prim = lanes_prim[tid]
-    for packet_first in range(ray_first, ray_end, PACKET):
-        n_lanes = min(PACKET, ray_end - packet_first)
-        lanes, positive, coherent = _load_packet(lo, hi, origins, directions, t_min, t_max, packet_first, n_lanes,
-                                                 state, best_prim)
+    tiled_rays = 0
+    next_tiled = 0
+    column = 0
+    if row_length > 0:
+        tiled_rays = (origins.shape[0] // (TILE_ROWS * row_length)) * (TILE_ROWS * row_length)
+        if ray_first < tiled_rays:
+            next_tiled = tile_ray(ray_first, row_length)
+            column = next_tiled % row_length
+    for place in range(ray_first, ray_end, PACKET):
+        n_lanes = min(PACKET, ray_end - place)
+        packet_first, packet_second = place, place + TILE_COLUMNS
+        if place < tiled_rays:
+            packet_first, packet_second = next_tiled, next_tiled + row_length
+            next_tiled += TILE_COLUMNS
+            column += TILE_COLUMNS
+            if column == row_length:
+                column = 0
+                next_tiled += (TILE_ROWS - 1) * row_length
+        lanes, positive, coherent = _load_packet(lo, hi, origins, directions, t_min, t_max, packet_first,
+                                                 packet_second, n_lanes, state, best_prim)
         if not coherent:
-            walk_singly(packet_first, packet_first + n_lanes, tid, lo, hi, node_planes, node_links, leaf_prims, kind,
-                        geom, origins, directions, t_min, t_max, hit_slot, any_hit, mailbox, ray_id_base, stack_node,
-                        stack_t, inv_dir, NEAREST, action, work)
+            for run_first, run_end in ((packet_first, packet_first + min(n_lanes, TILE_COLUMNS)),
+                                       (packet_second, packet_second + max(0, n_lanes - TILE_COLUMNS))):
+                walk_singly(run_first, run_end, tid, lo, hi, node_planes, node_links, leaf_prims, kind, geom,
+                            origins, directions, t_min, t_max, hit_slot, any_hit, mailbox, ray_id_base, stack_node,
+                            stack_t, inv_dir, NEAREST, action, work)
             continue
         live = lanes
         done = 0
@@ -259,11 +281,12 @@ def kdtree_packet_kernel(ray_first, ray_end, tid, lo, hi, node_planes, node_link
             elif word >> 2 != 0:
                 first = leaf_first(node_links, node)
                 done = _visit_leaf_lanes(action, hit_slot, first, first + (word >> 2), leaf_prims, mailbox, tid,
-                                         ray_id_base, kind, geom, origins, directions, packet_first, lanes & ~done,
-                                         done, state, best_prim, any_hit)
+                                         ray_id_base, kind, geom, origins, directions, packet_first, packet_second,
+                                         lanes & ~done, done, state, best_prim, any_hit)
                 if any_hit and done == live:
                     break
             node, lanes, sp = _pop_lanes(state, best_prim, stack_node, packet_lanes, packet_t, tid, sp, done)
         for r in range(n_lanes):
-            finish_ray_in_mode(NEAREST, action, result_row(hit_slot, packet_first + r), state[_BEST + r],
+            finish_ray_in_mode(NEAREST, action, result_row(hit_slot, lane_ray(packet_first, r, packet_second)),
+                               state[_BEST + r],
                                best_prim[r], state[_U + r], state[_V + r])
