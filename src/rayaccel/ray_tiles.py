@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._jit import inline_kernel
+from ._jit import inline_kernel, kernel
 
 __all__ = ["TILE_COLUMNS", "TILE_ROWS", "image_row_length", "tile_ray", "lane_ray"]
 
@@ -46,32 +46,52 @@ _TIGHTER = 0.8
 _SAMPLED_TILES = 64
 
 
-def _spread(directions: np.ndarray) -> np.ndarray:
-    """The sum over the axes of the range of ``directions`` (..., k, 3) over its ``k`` rays."""
-    return np.sum(directions.max(axis=-2) - directions.min(axis=-2), axis=-1)
-
-
-def _first_row_length(directions: np.ndarray) -> int:
-    """Where the squared step between consecutive directions first exceeds :data:`_ROW_JUMP`
-    squared times the step before it, plus one; 0 when it does not within :data:`_LONGEST_ROW`
-    rays. Steps along a row change slowly, even across a wide view (normalised directions step
-    less toward its edges), and the step back to the next row's start is the row's width of
-    them. Looked for in probes of growing length, so that a common image's first row is read
-    once."""
-    probed = 0
-    for length in (1 << 10, 1 << 12, _LONGEST_ROW):
-        probe = np.asarray(directions[max(0, probed - 1):min(len(directions), length + 1)], dtype=np.float64)
-        if len(probe) < 3:
+@kernel
+def _first_row_length(directions, longest, jump):
+    """Where the squared step between consecutive directions first exceeds ``jump`` squared times
+    the step before it, plus one; 0 when the first step is zero or no such jump comes within
+    ``longest`` rays. Steps along a row change slowly, even across a wide view (normalised
+    directions step less toward its edges), and the step back to the next row's start is the
+    row's width of them."""
+    before = 0.0
+    for i in range(min(directions.shape[0] - 1, longest)):
+        step = 0.0
+        for axis in range(3):
+            step += (np.float64(directions[i + 1, axis]) - np.float64(directions[i, axis])) ** 2
+        if i == 0 and not step > 0.0:
             return 0
-        moves = np.diff(probe, axis=0)
-        steps = np.einsum("ij,ij->i", moves, moves)
-        if probed == 0 and not steps[0] > 0.0:
-            return 0
-        jumps = np.flatnonzero(steps[1:] > _ROW_JUMP ** 2 * steps[:-1])
-        if len(jumps):
-            return max(0, probed - 1) + int(jumps[0]) + 2
-        probed = max(0, probed - 1) + len(probe) - 1
+        if i > 0 and step > jump * jump * before:
+            return i + 1
+        before = step
     return 0
+
+
+@kernel
+def _tile_and_row_spreads(directions, width, samples):
+    """The medians, over ``samples`` tiles spread evenly over the image, of how far the directions
+    of a tile spread and of how far eight consecutive ones of a row from the same pixel spread
+    (the sum over the axes of their ranges)."""
+    rows = directions.shape[0] // width - (TILE_ROWS - 1)
+    places = width // TILE_COLUMNS - 1
+    count = min(samples, rows * places)
+    tile_spread = np.empty(count)
+    row_spread = np.empty(count)
+    for k in range(count):
+        place = (k * (rows * places - 1)) // max(1, count - 1)
+        first = (place // places) * width + (place % places) * TILE_COLUMNS
+        tile_spread[k] = 0.0
+        row_spread[k] = 0.0
+        for axis in range(3):
+            tile_lo, tile_hi = np.inf, -np.inf
+            row_lo, row_hi = np.inf, -np.inf
+            for lane in range(TILE_COLUMNS * TILE_ROWS):
+                in_tile = np.float64(directions[first + (lane // TILE_COLUMNS) * width + lane % TILE_COLUMNS, axis])
+                in_row = np.float64(directions[first + lane, axis])
+                tile_lo, tile_hi = min(tile_lo, in_tile), max(tile_hi, in_tile)
+                row_lo, row_hi = min(row_lo, in_row), max(row_hi, in_row)
+            tile_spread[k] += tile_hi - tile_lo
+            row_spread[k] += row_hi - row_lo
+    return np.median(tile_spread), np.median(row_spread)
 
 
 def image_row_length(directions: np.ndarray, multiple: int = TILE_COLUMNS) -> int:
@@ -84,21 +104,16 @@ def image_row_length(directions: np.ndarray, multiple: int = TILE_COLUMNS) -> in
     :data:`_ROW_JUMP` times the step before it or more; it is kept when, over up to
     :data:`_SAMPLED_TILES` places spread over the batch, the directions of a tile there
     spread at most :data:`_TIGHTER` times as far as eight of a row (medians): a batch
-    that is not an image fails that test whatever its row length read."""
+    that is not an image fails that test whatever its row length read. Two small kernels
+    read the rays (about 10 us for a 1024-pixel row); the same steps in NumPy took 160 us,
+    which the forest's camera rays, 4.5 ms a call for an any hit on two threads, felt."""
     n = len(directions)
     if n < 2 * TILE_COLUMNS + 1:
         return 0
-    width = _first_row_length(directions)
+    width = _first_row_length(directions, _LONGEST_ROW, _ROW_JUMP)
     if width < 2 * TILE_COLUMNS or width % multiple or n < TILE_ROWS * width:
         return 0
-    rows = n // width - (TILE_ROWS - 1)
-    places = width // TILE_COLUMNS - 1
-    sample = np.linspace(0, rows * places - 1, min(_SAMPLED_TILES, rows * places)).astype(np.int64)
-    firsts = (sample // places) * width + (sample % places) * TILE_COLUMNS
-    in_row = firsts[:, None] + np.arange(2 * TILE_COLUMNS)
-    in_tile = (firsts[:, None] + (np.arange(TILE_ROWS)[:, None] * width + np.arange(TILE_COLUMNS)).ravel())
-    row_spread = np.median(_spread(np.asarray(directions[in_row], dtype=np.float64)))
-    tile_spread = np.median(_spread(np.asarray(directions[in_tile], dtype=np.float64)))
+    tile_spread, row_spread = _tile_and_row_spreads(directions, width, _SAMPLED_TILES)
     return width if tile_spread <= _TIGHTER * row_spread else 0
 
 
