@@ -32,7 +32,7 @@ import numpy as np
 
 from ._jit import inline_kernel, kernel
 
-__all__ = ["TILE_COLUMNS", "TILE_ROWS", "image_row_length", "tile_ray", "lane_ray"]
+__all__ = ["TILE_COLUMNS", "TILE_ROWS", "image_row_length", "tile_ray", "first_tile", "next_tile", "lane_ray"]
 
 TILE_COLUMNS = 4
 TILE_ROWS = 2
@@ -128,6 +128,32 @@ def tile_ray(j, row_length):
     tile = place // (TILE_COLUMNS * TILE_ROWS)
     lane = place - tile * (TILE_COLUMNS * TILE_ROWS)
     return pair * pair_length + (lane // TILE_COLUMNS) * row_length + tile * TILE_COLUMNS + lane % TILE_COLUMNS
+
+
+@inline_kernel
+def first_tile(ray_first, row_length, n_rays):
+    """Where a chunk of the tile order from place ``ray_first`` starts, for :func:`next_tile`:
+    ``(tiled_rays, first, column)``, the rays of the whole pairs of rows of ``n_rays`` rays in rows
+    of ``row_length`` (0 when that is 0), and the ray and column of the place when it lies among
+    them."""
+    if row_length == 0:
+        return 0, 0, 0
+    tiled_rays = (n_rays // (TILE_ROWS * row_length)) * (TILE_ROWS * row_length)
+    if ray_first >= tiled_rays:
+        return tiled_rays, 0, 0
+    first = tile_ray(ray_first, row_length)
+    return tiled_rays, first, first % row_length
+
+
+@inline_kernel
+def next_tile(first, column, columns, row_length):
+    """The ray and column ``columns`` columns on from ``first`` along its pair of rows, or the next
+    pair's first ray at the end of it: the tile order without a division a step."""
+    first += columns
+    column += columns
+    if column == row_length:
+        return first + (TILE_ROWS - 1) * row_length, 0
+    return first, column
 
 
 @inline_kernel

@@ -117,7 +117,9 @@ class BoundingVolumeHierarchy(Accelerator):
         head alike, as a pinhole camera's do (:func:`rayaccel.ray_order.packets_pay`), against
         bounds of the whole packet; rays that start near each other and head alike, as shadow
         rays from neighbouring hits to one light do (:func:`rayaccel.ray_order.lane_packets_pay`),
-        lane by lane. ``False`` walks every ray on its own. The answers are the same either way.
+        lane by lane. An image's rays given row after row go in packets of four pixels by two
+        (:mod:`rayaccel.ray_tiles`). ``False`` walks every ray on its own. The answers are the
+        same either way.
     interleave : bool, default True
         With the eight-wide walk, trace a batch of incoherent rays through a tree larger
         than the caches (:func:`rayaccel.ray_order.interleaving_pays`) with several rays

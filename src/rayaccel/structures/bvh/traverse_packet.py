@@ -32,6 +32,12 @@ row.
 A packet whose rays point to both sides along some axis has no single near face there:
 its rays are walked as packets of one.
 
+The rays of an image given row after row (:func:`rayaccel.ray_tiles.image_row_length`)
+go in packets of four pixels by two, whose directions spread about half as far as eight
+of a row: the walk takes the places of the tile order as its rays, a span being eight
+tiles side by side, and reads each packet in place, lanes 0-3 from one row and 4-7 from
+the next (full dragon camera rays, two threads: 1.12-1.13 closest / 1.15-1.16 any hit).
+
 Before its rays are loaded as packets, a run of :data:`SPAN` rays is bounded as a whole
 (:func:`.packet_slab.bound_span`) and tested against the root's child boxes; a run that
 misses them all is answered as misses at once (the "early miss exit" of Wald, Boulos &
@@ -71,7 +77,7 @@ from ..._validate import unusable_rays
 from ...geometry.gather import corner
 from ...geometry.kinds import TRIANGLE
 from ...geometry.primitive import ray_setup
-from ...ray_tiles import TILE_COLUMNS, TILE_ROWS, lane_ray, tile_ray
+from ...ray_tiles import TILE_COLUMNS, TILE_ROWS, first_tile, lane_ray, next_tile
 from ...rays import ray_at, ray_limit, result_row
 from ..actions import NEAREST, finish_misses_in_mode, finish_ray_in_mode, is_closer
 from .packet_slab import (
@@ -267,14 +273,7 @@ def _packet_walk(ray_first, ray_end, tid, records, links, prim_order, kind, geom
     best_prim = lanes_prim[tid]
     nearest_first = not any_hit and mode == NEAREST
     lane_triangles = mode == NEAREST and kind == TRIANGLE
-    tiled_rays = 0
-    next_tiled = 0
-    column = 0
-    if row_length > 0:
-        tiled_rays = (origins.shape[0] // (TILE_ROWS * row_length)) * (TILE_ROWS * row_length)
-        if ray_first < tiled_rays:
-            next_tiled = tile_ray(ray_first, row_length)
-            column = next_tiled % row_length
+    tiled_rays, next_tiled, column = first_tile(ray_first, row_length, origins.shape[0])
     unusable = 0
     for place in range(ray_first, ray_end, SPAN):
         span_rays = min(SPAN, ray_end - place)
@@ -282,11 +281,7 @@ def _packet_walk(ray_first, ray_end, tid, records, links, prim_order, kind, geom
             span_first = next_tiled
             span_second = span_first + row_length
             packet_step, lane_offset = TILE_COLUMNS, row_length
-            next_tiled += SPAN // TILE_ROWS
-            column += SPAN // TILE_ROWS
-            if column == row_length:
-                column = 0
-                next_tiled += (TILE_ROWS - 1) * row_length
+            next_tiled, column = next_tile(next_tiled, column, SPAN // TILE_ROWS, row_length)
         else:
             span_first = place
             span_second = place + SPAN // 2

@@ -180,7 +180,8 @@ class KdTree(Accelerator):
         Trace a coherent batch (:func:`rayaccel.ray_order.packets_pay` or
         :func:`rayaccel.ray_order.lane_packets_pay`: a camera's rays, shadow rays
         from their hits to one light) in packets of eight consecutive rays that
-        walk the tree together (:mod:`rayaccel.structures.kdtree.traverse_packet`).
+        walk the tree together (:mod:`rayaccel.structures.kdtree.traverse_packet`), an
+        image's rays in packets of four pixels by two (:mod:`rayaccel.ray_tiles`).
         ``False`` walks every ray on its own. The answers are the same either way.
     interleave : bool, default True
         Trace an incoherent batch through a tree larger than the caches

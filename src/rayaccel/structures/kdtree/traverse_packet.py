@@ -38,7 +38,7 @@ from ..._jit import chunk_kernel, inline_kernel, unsigned
 from ..._ray_lanes import LANES
 from ...geometry.box import clip_to_box
 from ...geometry.primitive import ray_setup
-from ...ray_tiles import TILE_COLUMNS, TILE_ROWS, lane_ray, tile_ray
+from ...ray_tiles import TILE_COLUMNS, first_tile, lane_ray, next_tile
 from ...rays import ray_limit, result_row
 from ..actions import NEAREST, finish_ray_in_mode, intersect_references
 from ..base import EXIT_MARGIN, settled_before
@@ -230,24 +230,13 @@ def kdtree_packet_kernel(ray_first, ray_end, tid, lo, hi, node_planes, node_link
     ``lanes_state`` (threads, PACKET_ROWS * PACKET) and ``lanes_prim`` (threads, PACKET) int64."""
     state = lanes_state[tid]
     best_prim = lanes_prim[tid]
-    tiled_rays = 0
-    next_tiled = 0
-    column = 0
-    if row_length > 0:
-        tiled_rays = (origins.shape[0] // (TILE_ROWS * row_length)) * (TILE_ROWS * row_length)
-        if ray_first < tiled_rays:
-            next_tiled = tile_ray(ray_first, row_length)
-            column = next_tiled % row_length
+    tiled_rays, next_tiled, column = first_tile(ray_first, row_length, origins.shape[0])
     for place in range(ray_first, ray_end, PACKET):
         n_lanes = min(PACKET, ray_end - place)
         packet_first, packet_second = place, place + TILE_COLUMNS
         if place < tiled_rays:
             packet_first, packet_second = next_tiled, next_tiled + row_length
-            next_tiled += TILE_COLUMNS
-            column += TILE_COLUMNS
-            if column == row_length:
-                column = 0
-                next_tiled += (TILE_ROWS - 1) * row_length
+            next_tiled, column = next_tile(next_tiled, column, TILE_COLUMNS, row_length)
         lanes, positive, coherent = _load_packet(lo, hi, origins, directions, t_min, t_max, packet_first,
                                                  packet_second, n_lanes, state, best_prim)
         if not coherent:
