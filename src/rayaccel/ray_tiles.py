@@ -4,7 +4,8 @@ A packet walk (:mod:`.structures.bvh.traverse_packet`) bounds eight rays togethe
 culls a node only where all of them miss it, so the tighter the eight, the more it culls
 and the later its rays part. A user's camera rays come row after row; eight consecutive
 ones span eight pixels of a row, a tile of :data:`TILE_COLUMNS` by :data:`TILE_ROWS`
-four columns of two rows, whose directions spread about half as far. Packets of
+four columns of two rows, whose directions spread 0.61 times as far (the sum over the
+axes of their ranges, median of 1024 tiles of the benchmark's 1024^2 camera). Packets of
 neighbouring pixels rather than of a row's are how Wald, Slusallek, Benthin & Wagner
 ("Interactive Rendering with Coherent Ray Tracing", Eurographics 2001) trace primary
 rays. The answers do not change, only which rays share a packet: each ray's hit is
@@ -19,11 +20,12 @@ packet in place, lanes 0-3 from one row and 4-7 from the next (:func:`lane_ray`)
 With the 1024^2 camera rays put in tile order before the call (bvh-binned, two
 threads, medians of seven rounds, time as given over time in tiles): full dragon
 closest hit 1.18, any hit 1.20; forest-small-chair 1.17 and 1.10. The walk reading
-tiles in place from the rows as given: full dragon 1.12 / 1.15, forest 1.04 / 0.99
-(nine rounds, the rays put in tile order before the call 1.17 / 1.17 and 1.17 / 1.12
-in the same run). Copying each span's rays into a buffer of the thread in tile order
-instead cost more than it gained (full dragon 1.01 / 1.05, forest 0.86 / 0.67, with a
-slower test for the row length then).
+tiles in place from the rows as given: full dragon 1.12-1.14 / 1.15-1.16, forest
+1.04-1.06 / 0.98-0.99 (three runs of nine to eleven rounds; the rays put in tile
+order before the call 1.16-1.18 / 1.12-1.20 and 1.14-1.17 / 1.08-1.12 in the same
+runs). Copying each span's rays into a buffer of the thread in tile order instead
+cost more than it gained (full dragon 1.01 / 1.05, forest 0.86 / 0.67, with a slower
+test for the row length then).
 """
 
 from __future__ import annotations
@@ -105,7 +107,7 @@ def image_row_length(directions: np.ndarray, multiple: int = TILE_COLUMNS) -> in
     :data:`_SAMPLED_TILES` places spread over the batch, the directions of a tile there
     spread at most :data:`_TIGHTER` times as far as eight of a row (medians): a batch
     that is not an image fails that test whatever its row length read. Two small kernels
-    read the rays (about 10 us for a 1024-pixel row); the same steps in NumPy took 160 us,
+    read the rays (4 us for 1024^2 camera rays); the same steps in NumPy took 160 us,
     which the forest's camera rays, 4.5 ms a call for an any hit on two threads, felt."""
     n = len(directions)
     if n < 2 * TILE_COLUMNS + 1:

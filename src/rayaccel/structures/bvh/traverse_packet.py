@@ -33,7 +33,7 @@ A packet whose rays point to both sides along some axis has no single near face 
 its rays are walked as packets of one.
 
 The rays of an image given row after row (:func:`rayaccel.ray_tiles.image_row_length`)
-go in packets of four pixels by two, whose directions spread about half as far as eight
+go in packets of four pixels by two, whose directions spread 0.6 times as far as eight
 of a row: the walk takes the places of the tile order as its rays, a span being eight
 tiles side by side, and reads each packet in place, lanes 0-3 from one row and 4-7 from
 the next (full dragon camera rays, two threads: 1.12-1.13 closest / 1.15-1.16 any hit).
