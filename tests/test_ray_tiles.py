@@ -8,7 +8,15 @@ import pytest
 from conftest import assert_counts_and_lists_match, assert_same_hits, random_rays
 
 import rayaccel as ra
-from rayaccel.ray_tiles import TILE_COLUMNS, TILE_ROWS, image_row_length, lane_ray, tile_ray
+from rayaccel.ray_tiles import (
+    TILE_COLUMNS,
+    TILE_ROWS,
+    first_tile,
+    image_row_length,
+    lane_ray,
+    next_tile,
+    tile_ray,
+)
 from rayaccel.structures.bvh import accelerator as bvh_accelerator
 from rayaccel.structures.bvh.traverse_packet import SPAN
 from rayaccel.structures.kdtree import accelerator as kdtree_accelerator
@@ -54,6 +62,24 @@ def test_tile_order_visits_every_ray_of_whole_row_pairs_once(row_length):
     assert [lane_ray(40, lane, 44) for lane in range(8)] == list(range(40, 48))
 
 
+@pytest.mark.parametrize("row_length, columns", [(8, 4), (32, 4), (64, 32), (1024, 32)])
+def test_tile_stepping_from_any_chunk_start_follows_the_tile_order(row_length, columns):
+    """The walks step through the tile order without dividing (:func:`first_tile`,
+    :func:`next_tile`), ``columns`` columns a step, from wherever a chunk starts; the rays of a
+    last odd row lie beyond the tiled ones."""
+    n = 5 * row_length + 3
+    tiled_rays = 2 * TILE_ROWS * row_length
+    step = columns * TILE_ROWS
+    for chunk_first in range(0, tiled_rays, step):
+        found, first, column = first_tile(chunk_first, row_length, n)
+        assert found == tiled_rays
+        for place in range(chunk_first, tiled_rays, step):
+            assert first == tile_ray(place, row_length) and column == first % row_length
+            first, column = next_tile(first, column, columns, row_length)
+    assert first_tile(tiled_rays, row_length, n) == (tiled_rays, 0, 0)
+    assert first_tile(0, 0, n) == (0, 0, 0)
+
+
 @pytest.fixture
 def tiles_seen(monkeypatch):
     """The row lengths the packet walks of the BVH and the kd-tree were given, call by call."""
@@ -66,10 +92,6 @@ def tiles_seen(monkeypatch):
     for module in (bvh_accelerator, kdtree_accelerator):
         monkeypatch.setattr(module, "image_row_length", spy)
     return seen
-
-
-def packet_structures(scene):
-    return {"bvh-binned": ra.build(scene, "bvh-binned"), "kdtree": ra.build(scene, "kdtree")}
 
 
 @pytest.mark.parametrize("method", ["bvh-binned", "kdtree"])

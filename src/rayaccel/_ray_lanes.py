@@ -40,31 +40,31 @@ def rays_by_axis(context, builder, array_type, array, row, second=None):
     :func:`rays_readable` accepts, as three vectors of eight float64, x, y and z, one lane a ray:
     three loads of eight numbers, shuffled from rows to lanes. Given ``second`` (an intp value),
     lanes 4-7 take the four rows from ``second`` instead (a packet of two image rows,
-    :mod:`rayaccel.ray_tiles`): two loads of twelve numbers, joined, then shuffled alike."""
+    :mod:`rayaccel.ray_tiles`): each four rows' twelve numbers loaded as eight and four, then
+    shuffled alike."""
     intp = context.get_value_type(types.intp)
     data = context.make_array(array_type)(context, builder, array).data
-    to_lanes = [ir.Constant(ir.VectorType(ir.IntType(32), LANES), [3 * lane + axis for lane in range(LANES)])
-                for axis in range(3)]
-    if second is not None:
-        starts = [builder.gep(data, [builder.mul(first, ir.Constant(intp, 3))]) for first in (row, second)]
-        eights = [load_eight(builder, array_type, start) for start in starts]
-        fours = [_load_four(builder, array_type, builder.gep(start, [ir.Constant(intp, LANES)])) for start in starts]
-        widen = ir.Constant(ir.VectorType(ir.IntType(32), LANES), list(range(4)) + [4] * 4)
-        fours = [builder.shuffle_vector(four, four, widen) for four in fours]
-        low = builder.shuffle_vector(eights[0], fours[0], ir.Constant(ir.VectorType(ir.IntType(32), 2 * LANES),
-                                                                       list(range(2 * LANES))))
-        high = builder.shuffle_vector(eights[1], fours[1], ir.Constant(ir.VectorType(ir.IntType(32), 2 * LANES),
-                                                                        list(range(2 * LANES))))
-        order = [k for k in range(12)] + [16 + k for k in range(12)]
-        return [builder.shuffle_vector(low, high, ir.Constant(ir.VectorType(ir.IntType(32), LANES),
-                                                              [order[3 * lane + axis] for lane in range(LANES)]))
-                for axis in range(3)]
-    start = builder.gep(data, [builder.mul(row, ir.Constant(intp, 3))])
-    parts = [load_eight(builder, array_type, builder.gep(start, [ir.Constant(intp, LANES * k)])) for k in range(3)]
+    to_lanes = [[3 * lane + axis for lane in range(LANES)] for axis in range(3)]
     sixteen = ir.Constant(ir.VectorType(ir.IntType(32), 2 * LANES), list(range(2 * LANES)))
-    low = builder.shuffle_vector(parts[0], parts[1], sixteen)
-    high = builder.shuffle_vector(parts[2], parts[2], sixteen)
-    return [builder.shuffle_vector(low, high, lanes) for lanes in to_lanes]
+    if second is None:
+        start = builder.gep(data, [builder.mul(row, ir.Constant(intp, 3))])
+        parts = [load_eight(builder, array_type, builder.gep(start, [ir.Constant(intp, LANES * k)])) for k in range(3)]
+        low = builder.shuffle_vector(parts[0], parts[1], sixteen)
+        high = builder.shuffle_vector(parts[2], parts[2], sixteen)
+    else:
+        half = LANES // 2
+        halves = []
+        for first in (row, second):
+            start = builder.gep(data, [builder.mul(first, ir.Constant(intp, 3))])
+            four = _load_four(builder, array_type, builder.gep(start, [ir.Constant(intp, LANES)]))
+            widened = builder.shuffle_vector(four, four, ir.Constant(ir.VectorType(ir.IntType(32), LANES),
+                                                                     list(range(half)) + [half] * half))
+            halves.append(builder.shuffle_vector(load_eight(builder, array_type, start), widened, sixteen))
+        low, high = halves
+        numbers = 3 * half
+        to_lanes = [[k if k < numbers else k - numbers + 2 * LANES for k in lanes] for lanes in to_lanes]
+    return [builder.shuffle_vector(low, high, ir.Constant(ir.VectorType(ir.IntType(32), LANES), lanes))
+            for lanes in to_lanes]
 
 
 def _load_four(builder, array_type, pointer):

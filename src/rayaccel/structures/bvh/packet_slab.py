@@ -213,9 +213,9 @@ def load_packet(typingctx, origins, directions, first, second, state, bounds):
     (``first + 4`` for eight consecutive rays, a row's length on for a tile of an image,
     :mod:`rayaccel.ray_tiles`) of ``origins`` and ``directions`` ((n, 3) C-contiguous float64 or
     float32) into rows 0-5 of ``state`` (origins, then inverse directions, one lane a ray), in
-    vector instructions: two loads of twelve numbers per array, shuffled from rows to lanes, and
-    three vector divisions. Returns 1 when the rays point to both
-    sides along some axis, else 0 after writing the packet's interval bounds (rows 0-14 of
+    vector instructions: four loads per array (:func:`rayaccel._ray_lanes.rays_by_axis`), shuffled
+    from rows to lanes, and three vector divisions. Returns 1 when the rays point to both sides
+    along some axis, else 0 after writing the packet's interval bounds (rows 0-14 of
     :data:`BOUND_VALUES`) into ``bounds``, as the scalar set-up of the packet walk computes them."""
     if not rays_readable(origins, directions):
         return None

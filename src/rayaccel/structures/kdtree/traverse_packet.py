@@ -66,10 +66,9 @@ directions by axis, their intervals in the current cell, their ``t_min`` and bes
 @inline_kernel
 def _load_packet(lo, hi, origins, directions, t_min, t_max, packet_first, packet_second, n_lanes, state, best_prim):
     """Load the rays of a packet (:func:`rayaccel.ray_tiles.lane_ray`) into ``state`` and clip them
-    to the tree's box: ``(lanes,
-    positive, coherent)``, the lanes whose ray meets the box, the sign of each axis's
-    direction (bit ``axis`` set where positive) and whether all rays share those signs, each
-    direction component with a finite reciprocal (no zero or subnormal one)."""
+    to the tree's box: ``(lanes, positive, coherent)``, the lanes whose ray meets the box, the
+    sign of each axis's direction (bit ``axis`` set where positive) and whether all rays share
+    those signs, each direction component with a finite reciprocal (no zero or subnormal one)."""
     lanes = 0
     positive = 0
     coherent = True
@@ -277,5 +276,4 @@ def kdtree_packet_kernel(ray_first, ray_end, tid, lo, hi, node_planes, node_link
             node, lanes, sp = _pop_lanes(state, best_prim, stack_node, packet_lanes, packet_t, tid, sp, done)
         for r in range(n_lanes):
             finish_ray_in_mode(NEAREST, action, result_row(hit_slot, lane_ray(packet_first, r, packet_second)),
-                               state[_BEST + r],
-                               best_prim[r], state[_U + r], state[_V + r])
+                               state[_BEST + r], best_prim[r], state[_U + r], state[_V + r])
