@@ -25,13 +25,14 @@ def rays_readable(*arrays) -> bool:
                for a in arrays)
 
 
-def load_eight(builder, array_type, pointer):
-    """Eight consecutive numbers of a float64 or float32 array from ``pointer`` as a vector of
-    eight float64 (float32 widened exactly, as :func:`rayaccel.rays.ray_at` widens them)."""
-    doubles = ir.VectorType(ir.DoubleType(), LANES)
+def load_eight(builder, array_type, pointer, count=LANES):
+    """``count`` (eight unless given) consecutive numbers of a float64 or float32 array from
+    ``pointer`` as a vector of float64 (float32 widened exactly, as :func:`rayaccel.rays.ray_at`
+    widens them)."""
+    doubles = ir.VectorType(ir.DoubleType(), count)
     if array_type.dtype == types.float64:
         return builder.load(builder.bitcast(pointer, doubles.as_pointer()), align=8)
-    floats = ir.VectorType(ir.FloatType(), LANES)
+    floats = ir.VectorType(ir.FloatType(), count)
     return builder.fpext(builder.load(builder.bitcast(pointer, floats.as_pointer()), align=4), doubles)
 
 
@@ -56,7 +57,7 @@ def rays_by_axis(context, builder, array_type, array, row, second=None):
         halves = []
         for first in (row, second):
             start = builder.gep(data, [builder.mul(first, ir.Constant(intp, 3))])
-            four = _load_four(builder, array_type, builder.gep(start, [ir.Constant(intp, LANES)]))
+            four = load_eight(builder, array_type, builder.gep(start, [ir.Constant(intp, LANES)]), half)
             widened = builder.shuffle_vector(four, four, ir.Constant(ir.VectorType(ir.IntType(32), LANES),
                                                                      list(range(half)) + [half] * half))
             halves.append(builder.shuffle_vector(load_eight(builder, array_type, start), widened, sixteen))
@@ -65,11 +66,3 @@ def rays_by_axis(context, builder, array_type, array, row, second=None):
         to_lanes = [[k if k < numbers else k - numbers + 2 * LANES for k in lanes] for lanes in to_lanes]
     return [builder.shuffle_vector(low, high, ir.Constant(ir.VectorType(ir.IntType(32), LANES), lanes))
             for lanes in to_lanes]
-
-
-def _load_four(builder, array_type, pointer):
-    """Four consecutive numbers of a float64 or float32 array from ``pointer`` as a vector of four float64."""
-    if array_type.dtype == types.float64:
-        return builder.load(builder.bitcast(pointer, ir.VectorType(ir.DoubleType(), 4).as_pointer()), align=8)
-    floats = builder.load(builder.bitcast(pointer, ir.VectorType(ir.FloatType(), 4).as_pointer()), align=4)
-    return builder.fpext(floats, ir.VectorType(ir.DoubleType(), 4))

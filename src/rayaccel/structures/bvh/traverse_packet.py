@@ -36,7 +36,7 @@ The rays of an image given row after row (:func:`rayaccel.ray_tiles.image_row_le
 go in packets of four pixels by two, whose directions spread 0.6 times as far as eight
 of a row: the walk takes the places of the tile order as its rays, a span being eight
 tiles side by side, and reads each packet in place, lanes 0-3 from one row and 4-7 from
-the next (full dragon camera rays, two threads: 1.12-1.13 closest / 1.15-1.16 any hit).
+the next (full dragon camera rays, two threads: 1.12-1.14 closest / 1.15-1.16 any hit).
 
 Before its rays are loaded as packets, a run of :data:`SPAN` rays is bounded as a whole
 (:func:`.packet_slab.bound_span`) and tested against the root's child boxes; a run that
