@@ -6,7 +6,7 @@ any hit, nanoseconds a ray):
 - distinct: every ray its own, as the throughput benchmark traces them;
 - ``k`` rays repeated back to back: each of ``k`` rays traced many times in a row, so that its
   nodes and triangles are in the first-level cache and every branch of its walk is learned;
-- ``k`` rays repeated in random order: the same rays and the same small working set, but the
+- ``k`` rays repeated in random order: the same rays and the same working set, but the
   branch predictor meets a different walk at each ray.
 
 Where distinct rays cost more than rays repeated in random order, the difference is waiting for
