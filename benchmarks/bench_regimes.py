@@ -28,9 +28,9 @@ from pathlib import Path
 
 import numpy as np
 from _common import ROOT, ensure_competitors, incoherent_rays, median_seconds
+from bench_structures import environment, markdown_table, rich_table
 from peers import EmbreePeer, RaySet
 from rich.console import Console
-from rich.table import Table
 
 import rayaccel as ra
 from rayaccel._jit import set_threads
@@ -62,10 +62,7 @@ def main(argv=None) -> None:
     if "embreex" not in ensure_competitors(console):
         sys.exit("Embree (embreex) is needed for this comparison")
     set_threads(1)
-    lines = ["| " + " | ".join(COLUMNS) + " |", "|---|---|---|---:|---:|---:|"]
-    table = Table(title="One thread, nanoseconds a ray")
-    for k, column in enumerate(COLUMNS):
-        table.add_column(column, justify="left" if k < 3 else "right")
+    rows = []
     for name in args.scenes:
         scene = ra.load_scene(name)
         accel = ra.build(scene, "bvh-binned", packets=False, interleave=False)
@@ -73,22 +70,20 @@ def main(argv=None) -> None:
         origins, directions = incoherent_rays(scene, args.rays)
         for label, rays in batches(origins, directions):
             prepared = embree.prepare(rays)
-            for query in ("closest", "any hit"):
-                if query == "closest":
-                    ours = lambda: accel.intersect(rays.origins, rays.directions)  # noqa: E731
-                    theirs = lambda: embree.closest(prepared)  # noqa: E731
-                else:
-                    ours = lambda: accel.occluded(rays.origins, rays.directions)  # noqa: E731
-                    theirs = lambda: embree.any_hit(prepared)  # noqa: E731
+            queries = {"closest": (lambda: accel.intersect(rays.origins, rays.directions),
+                                   lambda: embree.closest(prepared)),
+                       "any hit": (lambda: accel.occluded(rays.origins, rays.directions),
+                                   lambda: embree.any_hit(prepared))}
+            for query, (ours, theirs) in queries.items():
                 ours_ns = median_seconds(ours, args.repeat) / len(rays) * 1e9
                 theirs_ns = median_seconds(theirs, args.repeat) / len(rays) * 1e9
-                row = (name, label, query, f"{ours_ns:.0f}", f"{theirs_ns:.0f}", f"{theirs_ns / ours_ns:.2f}")
-                table.add_row(*row)
-                lines.append("| " + " | ".join(row) + " |")
-    console.print(table)
+                rows.append([name, label, query, f"{ours_ns:.0f}", f"{theirs_ns:.0f}", f"{theirs_ns / ours_ns:.2f}"])
+    title = "One thread, nanoseconds a ray"
+    console.print(rich_table(title, list(COLUMNS), rows))
     args.out.mkdir(parents=True, exist_ok=True)
     path = args.out / "bench_regimes.md"
-    path.write_text("\n".join(lines) + "\n")
+    machine = "".join(f"- {item}\n" for item in environment())
+    path.write_text(machine + "\n" + markdown_table(title, list(COLUMNS), rows))
     console.print(f"wrote {path}")
 
 
