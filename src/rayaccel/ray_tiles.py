@@ -34,7 +34,8 @@ import numpy as np
 
 from ._jit import inline_kernel, kernel
 
-__all__ = ["TILE_COLUMNS", "TILE_ROWS", "image_row_length", "tile_ray", "first_tile", "next_tile", "lane_ray"]
+__all__ = ["TILE_COLUMNS", "TILE_ROWS", "image_row_length", "tile_ray", "first_tile", "next_tile", "lane_ray",
+           "run_rays"]
 
 TILE_COLUMNS = 4
 TILE_ROWS = 2
@@ -163,3 +164,14 @@ def lane_ray(first, lane, second):
     """The ray in lane ``lane`` of a packet whose lanes 0-3 are the rays from ``first`` on and
     lanes 4-7 those from ``second`` on (``first + 4`` for eight consecutive rays)."""
     return (first if lane < TILE_COLUMNS else second - TILE_COLUMNS) + lane
+
+
+@inline_kernel
+def run_rays(first, second, n_rays, run_length, run):
+    """The rays ``(first, end)`` of run ``run`` (0 or 1) of a tile or span of ``n_rays`` rays laid
+    out as two runs of up to ``run_length`` rays, from ``first`` and from ``second`` on (a row
+    apart in an image, or one after the other); the second run is empty when ``n_rays`` fits in
+    the first."""
+    if run == 0:
+        return first, first + min(n_rays, run_length)
+    return second, second + max(0, n_rays - run_length)

@@ -77,7 +77,7 @@ from ..._validate import unusable_rays
 from ...geometry.gather import corner
 from ...geometry.kinds import TRIANGLE
 from ...geometry.primitive import ray_setup
-from ...ray_tiles import TILE_COLUMNS, TILE_ROWS, first_tile, lane_ray, next_tile
+from ...ray_tiles import TILE_COLUMNS, TILE_ROWS, first_tile, lane_ray, next_tile, run_rays
 from ...rays import ray_at, ray_limit, result_row
 from ..actions import NEAREST, finish_misses_in_mode, finish_ray_in_mode, is_closer
 from .packet_slab import (
@@ -243,15 +243,6 @@ def _root_culls_span(records, origins, directions, t_min, t_max, span_first, spa
 
 
 @inline_kernel
-def _span_run(span_first, span_second, span_rays, run):
-    """The rays ``(first, end)`` of run ``run`` (0 or 1) of a span of ``span_rays`` rays whose halves
-    start at ``span_first`` and ``span_second``."""
-    if run == 0:
-        return span_first, span_first + min(span_rays, SPAN // 2)
-    return span_second, span_second + max(0, span_rays - SPAN // 2)
-
-
-@inline_kernel
 def _packet_walk(ray_first, ray_end, tid, records, links, prim_order, kind, geom, origins, directions, t_min, t_max,
                  hit_slot, any_hit, stack_link, stack_count, stack_t, entry, lanes_state, bounds_state,
                  lanes_prim, row_length, by_lane, mode, action):
@@ -288,13 +279,13 @@ def _packet_walk(ray_first, ray_end, tid, records, links, prim_order, kind, geom
             packet_step, lane_offset = PACKET, TILE_COLUMNS
         unusable_here = 0
         for run in range(TILE_ROWS):
-            run_first, run_end = _span_run(span_first, span_second, span_rays, run)
+            run_first, run_end = run_rays(span_first, span_second, span_rays, SPAN // 2, run)
             unusable_here += unusable_rays(origins, directions, run_first, run_end)
         if unusable_here or (not by_lane and span_rays == SPAN and _root_culls_span(
                 records, origins, directions, t_min, t_max, span_first, span_second, bounds, child_entry)):
             unusable += unusable_here
             for run in range(TILE_ROWS):
-                run_first, run_end = _span_run(span_first, span_second, span_rays, run)
+                run_first, run_end = run_rays(span_first, span_second, span_rays, SPAN // 2, run)
                 finish_misses_in_mode(mode, action, hit_slot, run_first, run_end)
             continue
         for packet in range(0, span_rays, PACKET):

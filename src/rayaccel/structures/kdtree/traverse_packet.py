@@ -38,7 +38,7 @@ from ..._jit import chunk_kernel, inline_kernel, unsigned
 from ..._ray_lanes import LANES
 from ...geometry.box import clip_to_box
 from ...geometry.primitive import ray_setup
-from ...ray_tiles import TILE_COLUMNS, first_tile, lane_ray, next_tile
+from ...ray_tiles import TILE_COLUMNS, TILE_ROWS, first_tile, lane_ray, next_tile, run_rays
 from ...rays import ray_limit, result_row
 from ..actions import NEAREST, finish_ray_in_mode, intersect_references
 from ..base import EXIT_MARGIN, settled_before
@@ -239,8 +239,8 @@ def kdtree_packet_kernel(ray_first, ray_end, tid, lo, hi, node_planes, node_link
         lanes, positive, coherent = _load_packet(lo, hi, origins, directions, t_min, t_max, packet_first,
                                                  packet_second, n_lanes, state, best_prim)
         if not coherent:
-            for run_first, run_end in ((packet_first, packet_first + min(n_lanes, TILE_COLUMNS)),
-                                       (packet_second, packet_second + max(0, n_lanes - TILE_COLUMNS))):
+            for run in range(TILE_ROWS):
+                run_first, run_end = run_rays(packet_first, packet_second, n_lanes, TILE_COLUMNS, run)
                 walk_singly(run_first, run_end, tid, lo, hi, node_planes, node_links, leaf_prims, kind, geom,
                             origins, directions, t_min, t_max, hit_slot, any_hit, mailbox, ray_id_base, stack_node,
                             stack_t, inv_dir, NEAREST, action, work)
