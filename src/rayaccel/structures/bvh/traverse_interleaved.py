@@ -7,14 +7,15 @@ ray has one load in flight at a time however early its children are
 prefetched (:mod:`.traverse_wide`). This walk keeps ``slots`` rays per thread
 and takes one step of each in turn, a step being one stack entry (a node's
 eight child boxes, or a leaf's primitives) up to the choice of the ray's next
-entry, whose memory is prefetched when it is pushed; by the time the ray's
+entry, whose memory is prefetched when it is chosen, taken or pushed
+(:func:`.traverse_wide.descend`); by the time the ray's
 turn comes again, the other rays' steps have given the load time to arrive.
 This is asynchronous memory access chaining (Kocberber, Falsafi & Grot,
 "Asynchronous Memory Access Chaining", PVLDB 9(4), 2015), applied to the
 stack traversal. Each ray's state (its constants of
 :func:`rayaccel.geometry.primitive.ray_setup`, best hit, stack top, counters)
 waits in a row of per-thread scratch between its steps, its stack in a stack
-row of its own. The node test, the order of the pushes and the leaf visits
+row of its own. The node test, the choice of the next entry and the leaf visits
 are those of :mod:`.traverse_wide`, so every ray gets the same answer.
 
 Measured against :mod:`.traverse_wide` (``interleave=False``), medians of seven
@@ -49,9 +50,8 @@ from ...geometry.primitive import RAY_FLOATS, RAY_INTS, load_ray, ray_setup, sto
 from ...rays import ray_at, ray_limit, result_row
 from ..actions import COUNT, NEAREST, finish_misses_in_mode, finish_walked_ray
 from .traverse import enter_box
-from .traverse_wide import push_child, visit_leaf
-from .wide import child_count, child_link
-from .wide_slab import enter_children, highest_bit
+from .traverse_wide import descend, visit_leaf
+from .wide_slab import enter_children
 
 __all__ = ["SLOTS", "SLOT_INTS", "SLOT_FLOATS", "interleaved_nearest_kernel", "interleaved_count_kernel",
            "interleaved_crossings_kernel"]
@@ -159,13 +159,13 @@ def _walk(ray_first, ray_end, tid, root_box, records, links, prim_order, kind, g
                                          ints[slot, _NEAR_Z], (ray[0], ray[1], ray[2]),
                                          (floats[slot, _INV_X], floats[slot, _INV_Y], floats[slot, _INV_Z]),
                                          ray_t_min, best_t, child_entry)
-                base = sp
-                while entered != 0:
-                    c = highest_bit(entered)
-                    entered ^= 1 << c
-                    prims = child_count(links, link, c)
-                    sp = push_child(records, geom, stack_link, stack_count, stack_t, stack, base, sp,
-                                    child_entry[unsigned(c)], child_link(links, link, c), prims, prims, nearest_first)
+                if entered != 0:
+                    link, count, sp = descend(records, links, geom, link, entered, child_entry, stack_link,
+                                              stack_count, stack_t, stack, sp, nearest_first, True)
+                    ints[slot, _SP] = sp
+                    ints[slot, _LINK] = link
+                    ints[slot, _COUNT] = count
+                    continue
             else:
                 ints[slot, _LEAVES] += 1
                 best_t, best_prim, best_u, best_v, tests = visit_leaf(mode, action, result_row(hit_slot, i), kind,

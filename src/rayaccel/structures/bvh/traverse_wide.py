@@ -2,11 +2,12 @@
 
 At a wide node the ray tests the eight child boxes at once
 (:func:`.wide_slab.enter_children`, vector instructions), which gives the mask of
-the children it enters before its best hit. A single inner one is descended into
-directly. Otherwise each entered child goes on the stack, its entry distance with
-it; a closest-hit walk inserts each where it keeps the stack's top part ordered by
-entry distance (an insertion sort of the few children entered, nearest on top, as
-Embree's BVH8 traversal sorts its hits), then pops the nearest. An any-hit walk,
+the children it enters before its best hit. The walk goes on with one of them
+without a stack entry and pushes the others (:func:`descend`), as Embree's BVH8
+traversal does: the only one; of two, in a closest-hit walk, the nearer; of three
+or more, a closest-hit walk inserts each where it keeps the stack's top part
+ordered by entry distance (an insertion sort of the few children entered, nearest
+on top, as Embree sorts its hits), then pops the nearest. An any-hit walk,
 which ends at whatever hit it finds first, takes them in the tree's order unsorted,
 as Embree's any-hit traversal does, and so do the walks that count or list hits,
 which prune nothing (or, keeping the nearest ``max_hits``, little; counting the
@@ -14,8 +15,15 @@ dragon's camera rays: -25 % CPU time). Measured as CPU time of one thread on the
 four-wide layout against always sorting: skipping the sort for a single child gave
 +5-13 % on the full dragon and +15-30 % on camera rays of the forest; the unsorted
 any-hit walk +18 % (incoherent) to +96 % (camera rays) on the forest and -4 to -7 %
-on the dragon. Leaf children are pushed like inner ones and their primitives tested
-when popped, so a closest-hit walk meets primitives in front-to-back order.
+on the dragon. A leaf child is taken or pushed like an inner one and its primitives
+tested when the walk reaches it, so a closest-hit walk meets primitives in
+front-to-back order. Against pushing every entered child and popping the nearest
+(2026-11-28, forest-small-chair, 2**17 incoherent rays, one thread, instructions
+counted by cachegrind): 1,278-1,292 instructions a ray against 1,428-1,503 for
+closest hit, 830 against 958 for any hit, 69 branches against 84 with 10.6
+mispredicted against 9.4 (cachegrind's model of a predictor); the same hits. On
+that shared host the clocks could not tell them apart (in-process A/B, closest
+hit, 0.92-1.11).
 Whatever is pushed is prefetched, so its memory arrives while the ray works on
 nearer children (measured on the dragon's incoherent rays: +20-25 % against the
 binary walk, where a four-wide layout alone gave +5-14 %). An entry popped beyond
@@ -39,8 +47,19 @@ from .traverse import enter_box
 from .wide import child_count, child_link
 from .wide_slab import enter_children, highest_bit
 
-__all__ = ["wide_nearest_kernel", "wide_count_kernel", "wide_crossings_kernel", "push_child", "visit_leaf",
-           "walk_tree"]
+__all__ = ["wide_nearest_kernel", "wide_count_kernel", "wide_crossings_kernel", "prefetch_entry", "push_child",
+           "descend", "visit_leaf", "walk_tree"]
+
+
+@inline_kernel
+def prefetch_entry(records, geom, link, count):
+    """Start loading what a walk reads first at the stack entry ``(link, count)``: the four
+    cache lines of an inner child's record (``count`` 0), or a leaf's first primitive."""
+    if count == 0:
+        for line in range(0, 64, 16):
+            prefetch(records, link, line)
+    else:
+        prefetch_prim(geom, link)
 
 
 @inline_kernel
@@ -48,12 +67,8 @@ def push_child(records, geom, stack_link, stack_count, stack_t, tid, base, sp, t
     """Push a child entered at ``t`` on the stack, whose entries from ``base`` on are this node's
     children, below those nearer than it when ``nearest_first``; ``word`` goes into ``stack_count``
     (the child's primitive count, which a packet walk extends by its lanes); prefetch what
-    popping it will read: its record's four cache lines, or its first primitive."""
-    if count == 0:
-        for line in range(0, 64, 16):
-            prefetch(records, link, line)
-    else:
-        prefetch_prim(geom, link)
+    popping it will read (:func:`prefetch_entry`)."""
+    prefetch_entry(records, geom, link, count)
     row = unsigned(tid)
     slot = sp
     if nearest_first:
@@ -67,6 +82,47 @@ def push_child(records, geom, stack_link, stack_count, stack_t, tid, base, sp, t
     stack_count[row, unsigned(slot)] = word
     stack_t[row, unsigned(slot)] = t
     return sp + 1
+
+
+@inline_kernel
+def descend(records, links, geom, node, entered, child_entry, stack_link, stack_count, stack_t, tid, sp,
+            nearest_first, prefetch_next):
+    """Choose the entry a walk goes on with among the children of wide ``node`` it enters (the
+    bits of ``entered``, not 0; their entry distances in ``child_entry``) and push the others
+    (:func:`push_child`), as Embree's BVH8 traversal does: the only child is taken with no
+    stack entry; of two, a closest-hit walk (``nearest_first``) takes the nearer and pushes the
+    other; of three or more it pushes all, sorted, and pops the nearest. A walk that does not
+    sort pushes all but the child of lowest index and takes that one, in the order popping
+    them all would have given. ``prefetch_next`` prefetches the entry taken
+    (:func:`prefetch_entry`) for a walk that reads it a step later. Returns the entry
+    ``(link, count)`` and the stack size."""
+    c = highest_bit(entered)
+    others = entered ^ (1 << c)
+    if others != 0 and nearest_first:
+        d = highest_bit(others)
+        if others != 1 << d:
+            base = sp
+            while entered != 0:
+                c = highest_bit(entered)
+                entered ^= 1 << c
+                count = child_count(links, node, c)
+                sp = push_child(records, geom, stack_link, stack_count, stack_t, tid, base, sp,
+                                child_entry[unsigned(c)], child_link(links, node, c), count, count, True)
+            sp -= 1
+            return stack_link[unsigned(tid), unsigned(sp)], stack_count[unsigned(tid), unsigned(sp)], sp
+        near, far = (d, c) if child_entry[unsigned(d)] <= child_entry[unsigned(c)] else (c, d)
+        c, others = far, 1 << near
+    while others != 0:
+        count = child_count(links, node, c)
+        sp = push_child(records, geom, stack_link, stack_count, stack_t, tid, sp, sp, child_entry[unsigned(c)],
+                        child_link(links, node, c), count, count, False)
+        c = highest_bit(others)
+        others ^= 1 << c
+    link = child_link(links, node, c)
+    count = child_count(links, node, c)
+    if prefetch_next:
+        prefetch_entry(records, geom, link, count)
+    return link, count, sp
 
 
 @inline_kernel
@@ -103,67 +159,45 @@ def walk_tree(mode, action, row, records, links, prim_order, kind, geom, mailbox
     ``origin``, ``inv_dir`` and ``near_*`` as for :func:`.wide_slab.enter_children`, ``ray`` the
     primitive test's set-up, ``child_entry`` this thread's row of children's entry distances.
     Returns the walk's ``(best_t, best_prim, best_u, best_v)`` and its counters ``(nodes, leaves,
-    tests, skips)``; a leaf counts as a node too. The single entered inner child is descended
-    into by its own test before the push loop: folded into the loop's test of the last child,
-    the walk ran at 0.81 (dragon camera rays, closest hit) and 0.83 (forest camera rays, any
-    hit) of this one's speed on one thread."""
+    tests, skips)``; a leaf counts as a node too."""
     nearest_first = not any_hit and mode == NEAREST
     stack_row = unsigned(tid)
     n_nodes = 0
     n_leaves = 0
     n_tests = 0
     n_skips = 0
-    node = root
+    link = root
+    count = 0
     sp = 0
-    while node >= 0:
+    while True:
         n_nodes += 1
-        entered = enter_children(records, node, near_x, near_y, near_z, origin, inv_dir, span_lo,
-                                 min(best_t, span_hi), child_entry)
-        if entered != 0:
-            c = highest_bit(entered)
-            entered ^= 1 << c
-            if entered == 0 and child_count(links, node, c) == 0:
-                node = child_link(links, node, c)
+        if count == 0:
+            entered = enter_children(records, link, near_x, near_y, near_z, origin, inv_dir, span_lo,
+                                     min(best_t, span_hi), child_entry)
+            if entered != 0:
+                link, count, sp = descend(records, links, geom, link, entered, child_entry, stack_link, stack_count,
+                                          stack_t, tid, sp, nearest_first, False)
                 continue
-            base = sp
-            while True:
-                if entered == 0 and not nearest_first and child_count(links, node, c) == 0:
-                    node = child_link(links, node, c)
-                    break
-                count = child_count(links, node, c)
-                sp = push_child(records, geom, stack_link, stack_count, stack_t, tid, base, sp,
-                                child_entry[unsigned(c)], child_link(links, node, c), count, count, nearest_first)
-                if entered == 0:
-                    node = -1
-                    break
-                c = highest_bit(entered)
-                entered ^= 1 << c
-            if node >= 0:
-                continue
-        node = -1
-        while sp > 0:
-            sp -= 1
-            top = unsigned(sp)
-            if stack_t[stack_row, top] > best_t:
-                continue
-            count = stack_count[stack_row, top]
-            if count == 0:
-                node = stack_link[stack_row, top]
-                break
-            n_nodes += 1
+        else:
             n_leaves += 1
-            first = stack_link[stack_row, top]
             if mailbox is None:
-                best_t, best_prim, best_u, best_v, tests = visit_leaf(mode, action, row, kind, geom, prim_order, first,
+                best_t, best_prim, best_u, best_v, tests = visit_leaf(mode, action, row, kind, geom, prim_order, link,
                                                                       count, ray, t_min, best_t, best_prim, best_u,
                                                                       best_v, any_hit)
                 n_tests += tests
             else:
                 best_t, best_prim, best_u, best_v, n_tests, n_skips = intersect_references(
-                    mode, action, row, first, first + count, prim_order, mailbox, tid, stamp, kind, geom, True, ray,
+                    mode, action, row, link, link + count, prim_order, mailbox, tid, stamp, kind, geom, True, ray,
                     t_min, best_t, best_prim, best_u, best_v, n_tests, n_skips, any_hit)
             if any_hit and best_prim >= 0:
-                sp = 0
+                break
+        while sp > 0 and stack_t[stack_row, unsigned(sp - 1)] > best_t:
+            sp -= 1
+        if sp == 0:
+            break
+        sp -= 1
+        link = stack_link[stack_row, unsigned(sp)]
+        count = stack_count[stack_row, unsigned(sp)]
     return best_t, best_prim, best_u, best_v, n_nodes, n_leaves, n_tests, n_skips
 
 
