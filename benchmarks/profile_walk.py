@@ -16,6 +16,15 @@ Results go to ``--out`` (default ``benchmarks/results/profile``): ``perf.data``,
 the code regions, ``<region>.annotated.txt`` (every instruction with its share
 of the samples) and ``summary.txt``. A sample lands on the instruction after the
 one that stalled (the sampling's skid): read the hot spots with their context.
+
+With ``--count`` the query runs ``--calls`` times under Valgrind's ``callgrind``
+instead (``apt-get install -y valgrind``), which counts every instruction those
+calls execute (collection is switched on for them alone), exactly and whatever
+else runs on the host; the annotation then gives each instruction's count a ray.
+Under Valgrind everything runs about fifty times slower: keep ``--side`` small
+(128: 16,384 rays).
+
+    python benchmarks/profile_walk.py --count --side 128 --option packets=False --option interleave=False
 """
 
 from __future__ import annotations
@@ -24,6 +33,7 @@ import argparse
 import ast
 import collections
 import ctypes
+import os
 import re
 import shutil
 import subprocess
@@ -51,7 +61,8 @@ def _build_option(text: str) -> tuple[str, object]:
 
 
 def trace(args) -> None:
-    """The profiled child: run the query for ``args.seconds``, then copy the executable regions."""
+    """The profiled child: run the query for ``args.seconds`` (``args.calls`` times, counted, with
+    ``--count``), then copy the executable regions."""
     import numpy as np
     from _common import incoherent_rays, light_position, primary_rays, shadow_rays
 
@@ -72,11 +83,16 @@ def trace(args) -> None:
         t_min, t_max = 1e-4, 1.0
     query = accel.intersect if args.query == "closest" else accel.occluded
     query(origins, directions, t_min, t_max)
+    if args.count:
+        subprocess.run(["callgrind_control", "--instr=on", str(os.getpid())], check=True, capture_output=True)
     start, calls = time.perf_counter(), 0
-    while time.perf_counter() - start < args.seconds:
+    while (calls < args.calls) if args.count else (time.perf_counter() - start < args.seconds):
         query(origins, directions, t_min, t_max)
         calls += 1
+    if args.count:
+        subprocess.run(["callgrind_control", "--instr=off", str(os.getpid())], check=True, capture_output=True)
     print(f"{calls} calls, {(time.perf_counter() - start) / calls * 1e3:.1f} ms each")
+    (args.out / "rays.txt").write_text(f"{calls * len(origins)}\n")
     with open("/proc/self/maps") as maps:
         for line in maps:
             fields = line.split()
@@ -92,9 +108,29 @@ def sampled_addresses(perf_data: Path) -> collections.Counter:
     return collections.Counter(int(word, 16) for word in script.stdout.split())
 
 
-def annotate(region: Path, first: int, samples: collections.Counter, total: int) -> list[tuple[float, int, str]]:
+def counted_addresses(callgrind_out: Path) -> collections.Counter:
+    """How many times each instruction address ran, from a ``callgrind`` profile written with
+    ``--dump-instr=yes --dump-line=no --compress-pos=no``: its cost lines are ``address count``,
+    and the line after each ``calls=`` line holds a call's inclusive cost, which is skipped."""
+    counts = collections.Counter()
+    after_call = False
+    with open(callgrind_out) as lines:
+        for line in lines:
+            if line.startswith("calls="):
+                after_call = True
+            elif line.startswith("0x"):
+                if not after_call:
+                    address, count = line.split()[:2]
+                    counts[int(address, 16)] += int(count)
+                after_call = False
+    return counts
+
+
+def annotate(region: Path, first: int, samples: collections.Counter, total: int,
+             per_ray: bool = False) -> list[tuple[float, int, str]]:
     """Disassemble ``region`` (loaded at ``first``) and write each instruction with its share of
-    the ``total`` samples in the region; returns ``(share, address, line)`` for every instruction."""
+    ``total`` (the samples in the region, or with ``--count`` the rays traced); returns
+    ``(share, address, line)`` for every instruction."""
     listing = subprocess.run(["objdump", "-D", "-b", "binary", "-mi386:x86-64", "-M", "intel",
                               f"--adjust-vma={first:#x}", str(region)], capture_output=True, text=True,
                              check=True).stdout
@@ -104,36 +140,50 @@ def annotate(region: Path, first: int, samples: collections.Counter, total: int)
         if match:
             address = int(match.group(1), 16)
             rows.append((samples.get(address, 0) / total, address, line.strip()))
+    scale, width = (1, 8) if per_ray else (100, 6)
     with open(region.with_suffix(".annotated.txt"), "w") as out:
-        out.writelines(f"{100 * share:6.2f}  {line}\n" if share else f"        {line}\n" for share, _, line in rows)
+        out.writelines(f"{scale * share:{width}.2f}  {line}\n" if share else f"{'':{width}}  {line}\n"
+                       for share, _, line in rows)
     return rows
 
 
 def summarize(args) -> str:
-    """The hottest regions, their hottest instructions in context and their hottest 64-byte blocks."""
-    samples = sampled_addresses(args.out / "perf.data")
-    total = sum(samples.values())
-    report = [f"{total} samples; {args.scene}, {args.method}, {args.rays} rays, {args.query} hit, "
-              f"{args.threads} thread(s)"]
+    """The hottest regions, their hottest instructions in context and their hottest 64-byte blocks:
+    as shares of the samples, or with ``--count`` as instructions a traced ray."""
+    if args.count:
+        counts = counted_addresses(args.out / "callgrind.out")
+        rays = int((args.out / "rays.txt").read_text())
+        unit, scale = "instructions a ray", 1
+    else:
+        counts = sampled_addresses(args.out / "perf.data")
+        unit, scale = "%", 100
+    total = sum(counts.values())
+    report = [f"{total} {'instructions' if args.count else 'samples'}; {args.scene}, {args.method}, {args.rays} "
+              f"rays, {args.query} hit, {args.threads} thread(s)"]
     for region in sorted(args.out.glob("code_*.bin")):
         first = int(region.stem.split("_")[1], 16)
         end = first + region.stat().st_size
-        in_region = sum(count for address, count in samples.items() if first <= address < end)
-        if in_region < 0.01 * total:
+        in_region = sum(count for address, count in counts.items() if first <= address < end)
+        if in_region < (rays if args.count else 0.01 * total):
             continue
-        rows = annotate(region, first, samples, in_region)
-        report.append(f"\nregion {first:#x}: {100 * in_region / total:.1f} % of all samples (the process's "
-                      f"start included); shares below are of this region's "
-                      f"({region.with_suffix('.annotated.txt').name})")
+        rows = annotate(region, first, counts, rays if args.count else in_region, args.count)
+        if args.count:
+            report.append(f"\nregion {first:#x}: {in_region / rays:.1f} instructions a ray, "
+                          f"{100 * in_region / total:.1f} % of the process's "
+                          f"({region.with_suffix('.annotated.txt').name})")
+        else:
+            report.append(f"\nregion {first:#x}: {100 * in_region / total:.1f} % of all samples (the process's "
+                          f"start included); shares below are of this region's "
+                          f"({region.with_suffix('.annotated.txt').name})")
         blocks = collections.Counter()
         for share, address, _ in rows:
             blocks[address // BLOCK_BYTES * BLOCK_BYTES] += share
-        report.append("hottest 64-byte blocks: " + ", ".join(f"{address:#x} {100 * share:.1f} %"
+        report.append("hottest 64-byte blocks: " + ", ".join(f"{address:#x} {scale * share:.1f} {unit}"
                                                              for address, share in blocks.most_common(10)))
         for at in sorted(range(len(rows)), key=lambda k: rows[k][0], reverse=True)[:HOT_INSTRUCTIONS]:
             share, address, _ = rows[at]
-            report.append(f"\n{100 * share:.2f} % at {address:#x}:")
-            report.extend(f"  {100 * s:6.2f}  {line}" for s, _, line in rows[max(0, at - CONTEXT_LINES):at + 3])
+            report.append(f"\n{scale * share:.2f} {unit} at {address:#x}:")
+            report.extend(f"  {scale * s:8.2f}  {line}" for s, _, line in rows[max(0, at - CONTEXT_LINES):at + 3])
     return "\n".join(report)
 
 
@@ -148,20 +198,32 @@ def main() -> None:
     parser.add_argument("--side", type=int, default=512, help="camera image side; incoherent rays: side squared")
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--seconds", type=float, default=20.0, help="how long the query runs under perf")
+    parser.add_argument("--count", action="store_true",
+                        help="count instructions under Valgrind's callgrind instead of sampling with perf")
+    parser.add_argument("--calls", type=int, default=1, help="with --count: query calls after the first")
     parser.add_argument("--out", type=Path, default=Path(__file__).parent / "results" / "profile")
     parser.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.child:
         trace(args)
         return
-    missing = [tool for tool in ("perf", "objdump") if shutil.which(tool) is None]
+    profilers = ("valgrind", "callgrind_control") if args.count else ("perf",)
+    missing = [tool for tool in (*profilers, "objdump") if shutil.which(tool) is None]
     if missing:
-        sys.exit(f"profile_walk.py needs {' and '.join(missing)}: apt-get install -y linux-perf binutils")
+        sys.exit(f"profile_walk.py needs {' and '.join(missing)}: apt-get install -y "
+                 f"{'valgrind' if args.count else 'linux-perf'} binutils")
     args.out.mkdir(parents=True, exist_ok=True)
     for old in args.out.glob("code_*"):
         old.unlink()
-    subprocess.run(["perf", "record", "-e", "cpu-clock", "-F", "2000", "-o", str(args.out / "perf.data"), "--",
-                    sys.executable, __file__, "--child", *sys.argv[1:]], check=True)
+    child = [sys.executable, __file__, "--child", *sys.argv[1:]]
+    if args.count:
+        callgrind = ["valgrind", "--tool=callgrind", "--instr-atstart=no", "--dump-instr=yes", "--dump-line=no",
+                     "--compress-pos=no", "--compress-strings=no", f"--callgrind-out-file={args.out / 'callgrind.out'}"]
+        subprocess.run([*callgrind, *child], check=True,
+                       env={**os.environ, "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1"})
+    else:
+        subprocess.run(["perf", "record", "-e", "cpu-clock", "-F", "2000", "-o", str(args.out / "perf.data"), "--",
+                        *child], check=True)
     summary = summarize(args)
     (args.out / "summary.txt").write_text(summary + "\n")
     print(summary)
