@@ -154,18 +154,15 @@ def _walk(ray_first, ray_end, tid, root_box, records, links, prim_order, kind, g
             ray_t_min = ray_limit(t_min, i)
             ray = load_ray(floats, ints, slot)
             ints[slot, _NODES] += 1
+            next_count = -1
             if count == 0:
                 entered = enter_children(records, link, ints[slot, _NEAR_X], ints[slot, _NEAR_Y],
                                          ints[slot, _NEAR_Z], (ray[0], ray[1], ray[2]),
                                          (floats[slot, _INV_X], floats[slot, _INV_Y], floats[slot, _INV_Z]),
                                          ray_t_min, best_t, child_entry)
                 if entered != 0:
-                    link, count, sp = descend(records, links, geom, link, entered, child_entry, stack_link,
-                                              stack_count, stack_t, stack, sp, nearest_first, True)
-                    ints[slot, _SP] = sp
-                    ints[slot, _LINK] = link
-                    ints[slot, _COUNT] = count
-                    continue
+                    link, next_count, sp = descend(records, links, geom, link, entered, child_entry, stack_link,
+                                                   stack_count, stack_t, stack, sp, nearest_first, True)
             else:
                 ints[slot, _LEAVES] += 1
                 best_t, best_prim, best_u, best_v, tests = visit_leaf(mode, action, result_row(hit_slot, i), kind,
@@ -179,18 +176,16 @@ def _walk(ray_first, ray_end, tid, root_box, records, links, prim_order, kind, g
                 floats[slot, _BEST_V] = best_v
                 if any_hit and best_prim >= 0:
                     sp = 0
-            count = -1
-            while sp > 0:
+            while next_count < 0 and sp > 0:
                 sp -= 1
                 top = unsigned(sp)
                 if stack_t[stack, top] <= best_t:
                     link = stack_link[stack, top]
-                    count = stack_count[stack, top]
-                    break
-            if count >= 0:
+                    next_count = stack_count[stack, top]
+            if next_count >= 0:
                 ints[slot, _SP] = sp
                 ints[slot, _LINK] = link
-                ints[slot, _COUNT] = count
+                ints[slot, _COUNT] = next_count
                 continue
             finish_walked_ray(mode, action, work, result_row(hit_slot, i), best_t, ints[slot, _PRIM],
                               floats[slot, _BEST_U], floats[slot, _BEST_V], ints[slot, _NODES], ints[slot, _TESTS],
