@@ -20,15 +20,20 @@ are those of :mod:`.traverse_wide`, so every ray gets the same answer.
 
 Measured against :mod:`.traverse_wide` (``interleave=False``), medians of seven
 interleaved rounds, 2**20 incoherent rays, ``bvh-binned``, same answers; closest
-hit / any hit / ``count``, one core (CPU time) and two (wall time):
+hit / any hit / ``count``, one core (CPU time) and two (wall time), both walks
+choosing their next entry by :func:`.traverse_wide.descend` (2026-11-28, Zen 3):
 
-* full dragon (61 MB of records and triangles): 1.34 / 1.39 / 1.57 and 1.35 /
-  1.40 / 1.42;
-* dragon-203k (15 MB): 1.08 / 1.19 / 1.20 and 1.05 / 1.19 / 1.19;
-* armadillo (5 MB), one core: 0.96 / 1.02; forest-small-chair (3 MB): 0.84 /
-  0.82. These trees stay in the 2 MiB second-level caches and the last level,
-  where saving and restoring each ray's state and the rays' taking turns only
-  cost; shadow rays through them ran at 0.78-0.83.
+* full dragon (61 MB of records and triangles): 1.19 / 1.34 / 1.43 and 1.14 /
+  1.25 / 1.29;
+* dragon-203k (15 MB): 1.22 / 1.25 / 1.28 and 1.13 / 1.14 / 1.29.
+
+Before ``descend`` (each entered child pushed and popped, earlier sessions): full
+dragon 1.34 / 1.39 / 1.57 and 1.35 / 1.40 / 1.42, dragon-203k 1.08 / 1.19 / 1.20
+and 1.05 / 1.19 / 1.19; armadillo (5 MB), one core: 0.96 / 1.02;
+forest-small-chair (3 MB): 0.84 / 0.82. These two trees stayed in that host's
+2 MiB second-level caches and the last level, where saving and restoring each ray's
+state and the rays' taking turns only cost; shadow rays through them ran at
+0.78-0.83.
 
 Twelve slots: on two cores, closest hit on the full dragon took 200, 200,
 225, 194 and 210 ms with 4, 6, 8, 12 and 16 slots (8 was the slowest in
