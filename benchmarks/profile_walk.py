@@ -21,8 +21,8 @@ With ``--count`` the query runs ``--calls`` times under Valgrind's ``callgrind``
 instead (``apt-get install -y valgrind``), which counts every instruction those
 calls execute (collection is switched on for them alone), exactly and whatever
 else runs on the host; the annotation then gives each instruction's count a ray.
-Under Valgrind everything runs about fifty times slower: keep ``--side`` small
-(128: 16,384 rays).
+Counted calls run about a hundred times slower than natively (16,384 of the
+forest's incoherent rays: 0.9 s a call): keep ``--side`` small (128).
 
     python benchmarks/profile_walk.py --count --side 128 --option packets=False --option interleave=False
 """
@@ -200,7 +200,8 @@ def main() -> None:
     parser.add_argument("--seconds", type=float, default=20.0, help="how long the query runs under perf")
     parser.add_argument("--count", action="store_true",
                         help="count instructions under Valgrind's callgrind instead of sampling with perf")
-    parser.add_argument("--calls", type=int, default=1, help="with --count: query calls after the first")
+    parser.add_argument("--calls", type=int, default=1,
+                        help="with --count: query calls counted (after a first one, not counted, that compiles)")
     parser.add_argument("--out", type=Path, default=Path(__file__).parent / "results" / "profile")
     parser.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
     args = parser.parse_args()
