@@ -25,6 +25,12 @@ Counted calls run about a hundred times slower than natively (16,384 of the
 forest's incoherent rays: 0.9 s a call): keep ``--side`` small (128).
 
     python benchmarks/profile_walk.py --count --side 128 --option packets=False --option interleave=False
+
+``--peer embree`` counts Embree (through embreex, one thread) on the same rays
+instead: its library is a file with symbols, so its instructions are listed from
+that file's code (``<library>.annotated.txt``) beside embreex's own.
+
+    python benchmarks/profile_walk.py --count --side 128 --peer embree
 """
 
 from __future__ import annotations
@@ -82,6 +88,16 @@ def trace(args) -> None:
         origins, directions = shadow_rays(origins, directions, hits.t, light_position(scene))
         t_min, t_max = 1e-4, 1.0
     query = accel.intersect if args.query == "closest" else accel.occluded
+    if args.peer == "embree":
+        from peers import EmbreePeer, RaySet
+
+        embree = EmbreePeer(scene)
+        prepared = embree.prepare(RaySet(origins, directions, t_min, t_max))
+        answer = embree.closest if args.query == "closest" else embree.any_hit
+
+        def query(*_):
+            return answer(prepared)
+
     query(origins, directions, t_min, t_max)
     if args.count:
         subprocess.run(["callgrind_control", "--instr=on", str(os.getpid())], check=True, capture_output=True)
@@ -108,32 +124,40 @@ def sampled_addresses(perf_data: Path) -> collections.Counter:
     return collections.Counter(int(word, 16) for word in script.stdout.split())
 
 
-def counted_addresses(callgrind_out: Path) -> collections.Counter:
-    """How many times each instruction address ran, from a ``callgrind`` profile written with
-    ``--dump-instr=yes --dump-line=no --compress-pos=no``: its cost lines are ``address count``,
-    and the line after each ``calls=`` line holds a call's inclusive cost, which is skipped."""
-    counts = collections.Counter()
-    after_call = False
+def counted_addresses(callgrind_out: Path) -> dict[str, collections.Counter]:
+    """How many times each instruction address ran, by the object file it belongs to (Numba's
+    kernels under ``"???"``), from a ``callgrind`` profile written with ``--dump-instr=yes
+    --dump-line=no --compress-pos=no --compress-strings=no``: its cost lines are ``address
+    count`` (addresses in a shared library relative to its file), ``ob=`` names the object of
+    the lines after it, and the line after each ``calls=`` line holds a call's inclusive cost,
+    which is skipped."""
+    counts = collections.defaultdict(collections.Counter)
+    after_call, obj = False, "???"
     with open(callgrind_out) as lines:
         for line in lines:
-            if line.startswith("calls="):
+            if line.startswith("ob="):
+                obj = line[3:].strip()
+            elif line.startswith("calls="):
                 after_call = True
             elif line.startswith("0x"):
                 if not after_call:
                     address, count = line.split()[:2]
-                    counts[int(address, 16)] += int(count)
+                    counts[obj][int(address, 16)] += int(count)
                 after_call = False
     return counts
 
 
-def annotate(region: Path, first: int, samples: collections.Counter, total: int,
-             per_ray: bool = False) -> list[tuple[float, int, str]]:
-    """Disassemble ``region`` (loaded at ``first``) and write each instruction with its share of
-    ``total`` (the samples in the region, or with ``--count`` the rays traced); returns
-    ``(share, address, line)`` for every instruction."""
-    listing = subprocess.run(["objdump", "-D", "-b", "binary", "-mi386:x86-64", "-M", "intel",
-                              f"--adjust-vma={first:#x}", str(region)], capture_output=True, text=True,
-                             check=True).stdout
+def annotate(region: Path, first: int, samples: collections.Counter, total: int, per_ray: bool = False,
+             library: bool = False, out: Path | None = None) -> list[tuple[float, int, str]]:
+    """Disassemble ``region`` (loaded at ``first``; with ``library``, a shared library's file, its
+    code from the lowest to the highest address in ``samples``) and write each instruction with
+    its share of ``total`` (the samples in the region, or with ``--count`` the rays traced) to
+    ``out`` (by default ``region`` with the suffix ``.annotated.txt``); returns ``(share,
+    address, line)`` for every instruction."""
+    where = ([f"--start-address={min(samples):#x}", f"--stop-address={max(samples) + 16:#x}"] if library
+             else ["-b", "binary", "-mi386:x86-64", f"--adjust-vma={first:#x}"])
+    listing = subprocess.run(["objdump", "-d" if library else "-D", *where, "-M", "intel", str(region)],
+                             capture_output=True, text=True, check=True).stdout
     rows = []
     for line in listing.splitlines():
         match = re.match(r"\s*([0-9a-f]+):", line)
@@ -141,9 +165,9 @@ def annotate(region: Path, first: int, samples: collections.Counter, total: int,
             address = int(match.group(1), 16)
             rows.append((samples.get(address, 0) / total, address, line.strip()))
     scale, width = (1, 8) if per_ray else (100, 6)
-    with open(region.with_suffix(".annotated.txt"), "w") as out:
-        out.writelines(f"{scale * share:{width}.2f}  {line}\n" if share else f"{'':{width}}  {line}\n"
-                       for share, _, line in rows)
+    with open(out or region.with_suffix(".annotated.txt"), "w") as listing_file:
+        listing_file.writelines(f"{scale * share:{width}.2f}  {line}\n" if share else f"{'':{width}}  {line}\n"
+                                for share, _, line in rows)
     return rows
 
 
@@ -151,15 +175,24 @@ def summarize(args) -> str:
     """The hottest regions, their hottest instructions in context and their hottest 64-byte blocks:
     as shares of the samples, or with ``--count`` as instructions a traced ray."""
     if args.count:
-        counts = counted_addresses(args.out / "callgrind.out")
+        by_object = counted_addresses(args.out / "callgrind.out")
+        counts = by_object["???"]
         rays = int((args.out / "rays.txt").read_text())
         unit, scale = "instructions a ray", 1
     else:
         counts = sampled_addresses(args.out / "perf.data")
         unit, scale = "%", 100
-    total = sum(counts.values())
-    report = [f"{total} {'instructions' if args.count else 'samples'}; {args.scene}, {args.method}, {args.rays} "
+    total = sum(by_object[obj].total() for obj in by_object) if args.count else counts.total()
+    subject = "Embree (embreex)" if args.peer == "embree" else args.method
+    report = [f"{total} {'instructions' if args.count else 'samples'}; {args.scene}, {subject}, {args.rays} "
               f"rays, {args.query} hit, {args.threads} thread(s)"]
+    if args.count:
+        report.append("instructions a ray by object: " + ", ".join(
+            f"{Path(obj).name} {by_object[obj].total() / rays:.1f}"
+            for obj in sorted(by_object, key=lambda obj: -by_object[obj].total()) if by_object[obj].total() >= rays))
+        for obj, obj_counts in by_object.items():
+            if "embree" in Path(obj).name and obj_counts.total() >= rays:
+                annotate(Path(obj), 0, obj_counts, rays, True, True, args.out / f"{Path(obj).name}.annotated.txt")
     for region in sorted(args.out.glob("code_*.bin")):
         first = int(region.stem.split("_")[1], 16)
         end = first + region.stat().st_size
@@ -200,6 +233,8 @@ def main() -> None:
     parser.add_argument("--seconds", type=float, default=20.0, help="how long the query runs under perf")
     parser.add_argument("--count", action="store_true",
                         help="count instructions under Valgrind's callgrind instead of sampling with perf")
+    parser.add_argument("--peer", choices=("rayaccel", "embree"), default="rayaccel",
+                        help="with --count: count Embree's query on the same rays instead of rayaccel's")
     parser.add_argument("--calls", type=int, default=1,
                         help="with --count: query calls counted (after a first one, not counted, that compiles)")
     parser.add_argument("--out", type=Path, default=Path(__file__).parent / "results" / "profile")
@@ -208,6 +243,8 @@ def main() -> None:
     if args.child:
         trace(args)
         return
+    if args.peer != "rayaccel" and not args.count:
+        parser.error("--peer embree needs --count")
     profilers = ("valgrind", "callgrind_control") if args.count else ("perf",)
     missing = [tool for tool in (*profilers, "objdump") if shutil.which(tool) is None]
     if missing:
