@@ -108,7 +108,8 @@ def trace(args) -> None:
     if args.count:
         subprocess.run(["callgrind_control", "--instr=off", str(os.getpid())], check=True, capture_output=True)
     print(f"{calls} calls, {(time.perf_counter() - start) / calls * 1e3:.1f} ms each")
-    (args.out / "rays.txt").write_text(f"{calls * len(origins)}\n")
+    if args.count:
+        (args.out / "rays.txt").write_text(f"{calls * len(origins)}\n")
     with open("/proc/self/maps") as maps:
         for line in maps:
             fields = line.split()
