@@ -42,6 +42,20 @@ def settled_seconds(run) -> float:
     return time.perf_counter() - start
 
 
+def scene_every_subject_traces(name: str):
+    """The scene ``name`` with its vertices rounded to float32, as every peer stores them, so that
+    rayaccel traces the same triangles as the peers it is compared with. The scanned meshes are
+    float32 already; the procedural forest is built in float64, and given as it is, rayaccel would
+    trace triangles a few float32 ulps away from the peers' (and keep them in its indexed layout
+    instead of float32 lanes, :mod:`rayaccel.geometry.gather`)."""
+    import rayaccel as ra
+
+    scene = ra.load_scene(name)
+    if isinstance(scene, ra.TriangleMesh) and not scene.float32_exact:
+        scene = ra.TriangleMesh(scene.vertices.astype(np.float32), scene.faces)
+    return scene
+
+
 def _check_mitsuba() -> None:
     """Mitsuba imports without its JIT; the variant the benchmark uses needs libLLVM at run time."""
     import mitsuba

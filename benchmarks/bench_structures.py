@@ -38,7 +38,9 @@ absolute figures. Each timed call follows a pause and an untimed call of the sam
 (``_common.settled_seconds``): no peer's thread pool still spins while the next subject is
 timed, and each subject meets its query warm, as in a loop of its own. Each subject's
 answers are compared with the first rayaccel method's (same primitive for closest hit,
-same verdict for any hit; the peers trace in float32).
+same verdict for any hit; the peers trace in float32). Every subject traces the same
+triangles: a scene whose vertices are not float32 numbers (the procedural forest) is
+rounded to float32 first, as the peers store it (``_common.scene_every_subject_traces``).
 
     python benchmarks/bench_structures.py [--scenes dragon forest-small-chair] [--methods bvh-binned kdtree]
                                           [--side 1024] [--out benchmarks/results]
@@ -66,6 +68,7 @@ from _common import (  # noqa: E402
     incoherent_rays,
     light_position,
     primary_rays,
+    scene_every_subject_traces,
     settled_seconds,
     shadow_rays,
 )
@@ -80,8 +83,6 @@ from peers import (  # noqa: E402
     Subject,
     interleaved_build_seconds,
 )
-
-import rayaccel as ra  # noqa: E402
 
 ROUNDS = 5  # timing rounds; each figure is the median
 SHADOW_T_MIN = 1e-4  # in units of light - hit: a relative epsilon
@@ -227,7 +228,7 @@ def _merge_variants(rows: list[Row], subjects: list[Subject]) -> list[Row]:
 
 def bench_scene(name: str, methods: list[str], side: int, competitors: set[str], progress: Progress) -> SceneResult:
     task = progress.add_task(f"loading {name}", total=None)
-    scene = ra.load_scene(name)
+    scene = scene_every_subject_traces(name)
     progress.remove_task(task)
     subjects = build_subjects(scene, methods, competitors, progress)
     rays = ray_sets(scene, side, subjects[0])

@@ -26,9 +26,11 @@ forest's incoherent rays: 0.9 s a call): keep ``--side`` small (128).
 
     python benchmarks/profile_walk.py --count --side 128 --option packets=False --option interleave=False
 
-``--peer embree`` counts Embree (through embreex, one thread) on the same rays
-instead: its library is a file with symbols, so its instructions are listed from
-that file's code (``<library>.annotated.txt``) beside embreex's own.
+The scene is rounded to float32 as the benchmark gives it to every subject
+(``_common.scene_every_subject_traces``). ``--peer embree`` counts Embree
+(through embreex, one thread) on the same rays and triangles instead: its
+library is a file with symbols, so its instructions are listed from that
+file's code (``<library>.annotated.txt``) beside embreex's own.
 
     python benchmarks/profile_walk.py --count --side 128 --peer embree
 """
@@ -70,13 +72,13 @@ def trace(args) -> None:
     """The profiled child: run the query for ``args.seconds`` (``args.calls`` times, counted, with
     ``--count``), then copy the executable regions."""
     import numpy as np
-    from _common import incoherent_rays, light_position, primary_rays, shadow_rays
+    from _common import incoherent_rays, light_position, primary_rays, scene_every_subject_traces, shadow_rays
 
     import rayaccel as ra
     from rayaccel._jit import set_threads
 
     set_threads(args.threads)
-    scene = ra.load_scene(args.scene)
+    scene = scene_every_subject_traces(args.scene)
     accel = ra.build(scene, args.method, **dict(args.option))
     t_min, t_max = 0.0, np.inf
     if args.rays == "incoherent":

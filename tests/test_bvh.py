@@ -20,6 +20,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import rayaccel as ra
+from rayaccel.geometry.gather import layout_rows, prim_count
 from rayaccel.geometry.kdop import KDOP_NORMALS
 from rayaccel.structures.bvh.nodes import node_depths
 from rayaccel.structures.bvh.reinsertion import _largest
@@ -183,7 +184,7 @@ def test_wide_nodes_hold_every_leaf_once_inside_their_boxes(small_dragon):
     binary_leaves = b.node_count > 0
     assert sorted(zip(child[leaves], count[leaves])) == sorted(zip(b.node_first[binary_leaves],
                                                                   b.node_count[binary_leaves]))
-    vertices = accel.geometry.reshape(-1, 3, 3)
+    vertices = layout_rows(accel.geometry).reshape(-1, 3, 3)
     for node, c in zip(*np.nonzero(leaves)):
         points = vertices[child[node, c]:child[node, c] + count[node, c]].reshape(-1, 3)
         assert (points >= records[node, [c, WIDTH + c, 2 * WIDTH + c]]).all()
@@ -199,7 +200,7 @@ def test_node_volumes_contain_their_primitives(small_dragon, bounds):
     accel = ra.build(small_dragon, "bvh-binned", bounds=bounds)
     b = accel.bvh
     range_lo, range_hi = node_ranges(b.node_first, b.node_count)
-    vertices = accel.geometry.reshape(-1, 3, 3)
+    vertices = layout_rows(accel.geometry).reshape(-1, 3, 3)
     for node in range(0, b.n_nodes, 7):
         points = vertices[range_lo[node]:range_hi[node]].reshape(-1, 3)
         if bounds == "sphere":
@@ -334,27 +335,34 @@ def test_vector_child_test_equals_the_scalar_slab_test(seed, zero_axes, on_plane
     assert mask == sum(1 << c for c in range(WIDTH) if vector[c] != np.inf)
 
 
-def test_highest_bit():
+def test_highest_and_lowest_bit():
     from numba import njit
 
-    from rayaccel.structures.bvh.wide_slab import highest_bit
+    from rayaccel.structures.bvh.wide_slab import highest_bit, lowest_bit
 
     top = njit(lambda mask: highest_bit(mask))
+    bottom = njit(lambda mask: lowest_bit(mask))
     for mask in (1, 2, 3, 0b10110000, 255, 1 << 40):
         assert top(mask) == mask.bit_length() - 1
+        assert bottom(mask) == (mask & -mask).bit_length() - 1
 
 
-@pytest.mark.parametrize(("scene_name", "layout"), [("small_dragon", "rows"), ("bunny", "indexed")])
+@pytest.mark.parametrize(("scene_name", "layout"), [("small_dragon", "lanes"), ("bunny", "indexed")])
 def test_leaf_triangles_take_the_smallest_exact_layout(scene_name, layout, request):
-    """The dragon's PLY holds float32 vertices, so its leaf triangles are float32 rows; the bunny's
-    OBJ does not, so its are vertex indices into vertices renumbered by first use. Both hold the
+    """The dragon's PLY holds float32 vertices, so its leaf triangles are float32 lanes, four
+    triangles a group, the last group's spare lanes repeating the last triangle; the bunny's OBJ
+    does not, so its are vertex indices into vertices renumbered by first use. Both hold the
     scene's corners exactly, and what a ray query reads stays under 85 bytes per triangle."""
     scene = request.getfixturevalue(scene_name)
     accel = ra.build(scene, "bvh-binned")
     expected = scene.geometry[accel.bvh.prim_order]
-    if layout == "rows":
-        assert accel.geometry.dtype == np.float32 and accel.geometry.shape == expected.shape
-        corners = accel.geometry.astype(np.float64)
+    if layout == "lanes":
+        n = len(expected)
+        assert accel.geometry.dtype == np.float32 and accel.geometry.shape == ((n + 3) // 4, 9, 4)
+        rows = layout_rows(accel.geometry)
+        assert prim_count(accel.geometry) == len(rows) >= n
+        assert (rows[n:] == rows[n - 1]).all()
+        corners = rows[:n]
     else:
         corner_ids, leaf_vertices = accel.geometry
         assert corner_ids.dtype == np.int32 and leaf_vertices.dtype == np.float64
@@ -363,6 +371,65 @@ def test_leaf_triangles_take_the_smallest_exact_layout(scene_name, layout, reque
         corners = leaf_vertices[corner_ids].reshape(-1, 9)
     np.testing.assert_array_equal(corners, expected)
     assert accel.stats()["bytes"] / len(scene) < 85
+
+
+@pytest.mark.parametrize("max_leaf_size", [1, 3, 5, 8])
+def test_leaves_at_every_lane_offset_match_brute_force(small_dragon, max_leaf_size):
+    """Leaves of the lanes layout start at any lane of a group and may span two or three
+    groups; the edge test of a group's lanes admits every triangle of the leaf the full test
+    would hit and no lane outside the leaf, whatever the query: closest hit, any hit, counts and
+    lists, on rays through vertices and edges, axis-parallel rays and rays leaving the surface.
+    Degenerate triangles (collinear corners, a repeated corner) among them are never hit."""
+    faces = np.concatenate((small_dragon.faces, [[0, 0, 1], [2, 3, 3]]))
+    mesh = ra.TriangleMesh(small_dragon.vertices, faces)
+    accel = ra.build(mesh, "bvh-binned", max_leaf_size=max_leaf_size, packets=False, interleave=False)
+    assert accel.geometry.ndim == 3
+    first = accel.bvh.node_first[accel.bvh.node_count > 0]
+    assert len(np.unique(first % 4)) == 4
+    reference = ra.build(mesh, "none")
+    rng = np.random.default_rng(max_leaf_size)
+    corners = mesh.geometry[rng.integers(0, len(faces), 500)].reshape(-1, 3, 3)
+    on_surface = np.einsum("nk,nkj->nj", rng.dirichlet([1, 1, 1], 500), corners)
+    for origins, directions in (vertex_and_edge_rays(mesh, 1500), axis_parallel_rays(mesh, 500),
+                                (on_surface, rng.normal(size=(500, 3))), random_rays(mesh, 1500)):
+        assert_same_hits(reference.intersect(origins, directions), accel.intersect(origins, directions))
+        np.testing.assert_array_equal(accel.occluded(origins, directions), reference.occluded(origins, directions))
+        assert_counts_and_lists_match(reference, accel, origins, directions)
+
+
+def test_edges_of_four_lanes_admit_every_triangle_the_full_test_hits():
+    """:func:`rayaccel.structures.bvh.triangle_lanes.edges_admit` admits every triangle the scalar
+    watertight test hits and rejects others: random float32 triangles, many of them small and
+    near the ray, and rays through the corners two triangles of opposite windings share."""
+    from numba import njit
+
+    from rayaccel.geometry.gather import gather_triangles
+    from rayaccel.geometry.primitive import ray_setup
+    from rayaccel.geometry.triangle import intersect_triangle
+    from rayaccel.structures.bvh.triangle_lanes import edges_admit
+
+    @njit
+    def verdicts(lanes, n, ox, oy, oz, dx, dy, dz):
+        ray = ray_setup(ox, oy, oz, dx, dy, dz)
+        admitted = np.zeros(n, dtype=np.bool_)
+        hit = np.zeros(n, dtype=np.bool_)
+        for k in range(n):
+            mask = edges_admit(lanes, k // 4, ray[6], ray[7], ray[8], ray[12], ray[13], ray[14], ray[9], ray[10])
+            admitted[k] = (mask >> (k % 4)) & 1
+            t, _, _ = intersect_triangle(lanes, k, ray[12], ray[13], ray[14], ray[6], ray[7], ray[8], ray[9],
+                                         ray[10], ray[11], 0.0, np.inf)
+            hit[k] = t < np.inf
+        return admitted, hit
+
+    rng = np.random.default_rng(7)
+    vertices = rng.normal(scale=rng.choice([1e-3, 1.0], (3000, 1)), size=(3000, 3)).astype(np.float32)
+    vertices[:3] = [[0, 0, 0], [1, 0, 0], [0, 1, 0]]
+    faces = np.concatenate(([[0, 1, 2], [0, 2, 1]], rng.integers(0, 3000, (997, 3))))
+    lanes = gather_triangles(vertices.astype(np.float64), faces, np.arange(len(faces)), True)
+    for origin, direction in (((0.0, 0.0, 5.0), (0.0, 0.0, -1.0)), ((0.01, 0.02, -3.0), (0.0, 0.0, 1.0)),
+                              ((0.3, -0.2, 2.0), (-0.1, 0.1, -1.0))):
+        admitted, hit = verdicts(lanes, len(faces), *origin, *direction)
+        assert (admitted | ~hit).all() and hit.any() and not admitted.all()
 
 
 def test_refit_to_vertices_float32_cannot_hold_changes_the_layout(small_dragon):

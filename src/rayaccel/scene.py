@@ -92,10 +92,11 @@ class TriangleMesh:
 
     def gather(self, order: np.ndarray, out=None, *, indexed: bool = False):
         """The faces ``order`` in that order, in the smallest exact layout of
-        :mod:`rayaccel.geometry.gather`: (n, 9) float32 rows when :attr:`float32_exact`, else
-        vertex indices into the vertices renumbered by first use. Rows go into ``out`` when it
-        is rows of that shape. ``indexed`` asks for the indexed layout on a float32 mesh too,
-        for an ``order`` that repeats faces (a kd-tree's references), where rows repeat them whole."""
+        :mod:`rayaccel.geometry.gather`: float32 lanes, four triangles a group, when
+        :attr:`float32_exact`, else vertex indices into the vertices renumbered by first use.
+        Lanes go into ``out`` when it is lanes of that shape. ``indexed`` asks for the indexed
+        layout on a float32 mesh too, for an ``order`` that repeats faces (a kd-tree's
+        references), where lanes repeat them whole."""
         return gather_triangles(self.vertices, self.faces, np.ascontiguousarray(order, dtype=np.int64),
                                 not indexed and self.float32_exact, out)
 

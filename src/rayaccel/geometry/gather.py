@@ -3,9 +3,15 @@
 A BVH tests the triangles of a leaf one after the other, so it keeps them in
 leaf order, apart from the scene. Two layouts hold them exactly:
 
-* **rows**: an (n, 9) float32 array, each row a triangle's three corners, when
-  every vertex of the mesh is a float32 number (binary PLY and STL files store
-  float32): 36 bytes per triangle, read in one or two cache lines;
+* **lanes**: when every vertex of the mesh is a float32 number (binary PLY and
+  STL files store float32), an (ceil(n / 4), 9, 4) float32 array: triangle ``i``
+  is lane ``i % 4`` of group ``i // 4``, whose row ``3 j + k`` holds coordinate
+  ``k`` of corner ``j`` of its four triangles (the lanes past the last triangle
+  repeat it). That is 36 bytes per triangle, as rows of nine floats take, with
+  each coordinate of four consecutive triangles in 16 bytes, which one vector
+  instruction loads: Embree's ``Triangle4`` leaves (Wald et al., "Embree: A
+  Kernel Framework for Efficient CPU Ray Tracing", ACM TOG 33(4), 2014), for
+  the edge test of four triangles at once (:mod:`.triangle_lanes`);
 * **indexed**: ``(corner_ids, leaf_vertices)`` otherwise: the mesh's vertices
   (float64) renumbered in the order the leaves first use them, and an (n, 3)
   int32 array of each triangle's corners in that numbering: 12 bytes per
@@ -27,23 +33,30 @@ the forest 0.97-1.01 and on the bunny 0.99-1.03.
 from __future__ import annotations
 
 import numpy as np
+from llvmlite import ir
 from numba import types
-from numba.extending import overload
+from numba.extending import intrinsic, overload
 
 from .._jit import kernel, on_threads, prefetch, unsigned
 
-__all__ = ["gather_triangles", "layout_rows", "prim_count", "layout_nbytes", "corner", "prefetch_prim", "sphere_rows",
-           "float32_exact"]
+__all__ = ["LANES", "gather_triangles", "layout_rows", "prim_count", "layout_nbytes", "corner", "prefetch_prim",
+           "sphere_rows", "float32_exact", "is_lanes", "lane_pointer"]
+
+LANES = 4
+"""Triangles a group of the lanes layout holds: their float64 coordinates fill an AVX2 register."""
+_GROUP_FLOATS = 9 * LANES
 
 
 @kernel
-def _gather_rows(vertices, faces, order, out, first, end):
-    for i in range(first, end):
-        face = order[i]
-        for c in range(3):
-            vertex = faces[face, c]
-            for k in range(3):
-                out[i, 3 * c + k] = vertices[vertex, k]
+def _gather_lanes(vertices, faces, order, out, first_group, end_group):
+    last = order.shape[0] - 1
+    for group in range(first_group, end_group):
+        for lane in range(LANES):
+            face = order[min(LANES * group + lane, last)]
+            for c in range(3):
+                vertex = faces[face, c]
+                for k in range(3):
+                    out[group, 3 * c + k, lane] = vertices[vertex, k]
 
 
 @kernel
@@ -77,14 +90,15 @@ def float32_exact(vertices: np.ndarray) -> bool:
 
 
 def gather_triangles(vertices, faces, order, exact_in_float32: bool, out=None):
-    """The triangles ``faces[order]`` over ``vertices`` in leaf order: float32 rows when
-    ``exact_in_float32``, else the indexed layout (see the module docstring). Rows are
-    written into ``out`` when it is rows of the same shape (a refit: writing fresh pages
+    """The triangles ``faces[order]`` over ``vertices`` in leaf order: the lanes layout when
+    ``exact_in_float32``, else the indexed layout (see the module docstring). Lanes are
+    written into ``out`` when it is lanes of the same shape (a refit: writing fresh pages
     cost 3x the gather itself here)."""
     if exact_in_float32:
-        if not (isinstance(out, np.ndarray) and out.dtype == np.float32 and out.shape == (len(order), 9)):
-            out = np.empty((len(order), 9), dtype=np.float32)
-        on_threads(lambda first, end, _: _gather_rows(vertices, faces, order, out, first, end), order.shape[0])
+        shape = (-(-len(order) // LANES), 9, LANES)
+        if not (isinstance(out, np.ndarray) and out.dtype == np.float32 and out.shape == shape):
+            out = np.empty(shape, dtype=np.float32)
+        on_threads(lambda first, end, _: _gather_lanes(vertices, faces, order, out, first, end), shape[0])
         return out
     leaf_id = np.full(len(vertices), -1, dtype=np.int64)
     corner_ids = np.empty((len(order), 3), dtype=np.int32)
@@ -95,16 +109,22 @@ def gather_triangles(vertices, faces, order, exact_in_float32: bool, out=None):
 
 def layout_rows(geom) -> np.ndarray:
     """The triangles of a layout as (n, 9) float64 rows, for the passes that want whole rows
-    (fitting a BVH's other bounding volumes); sphere rows as they are."""
+    (fitting a BVH's other bounding volumes); sphere rows as they are. The lanes layout gives
+    a row for each of its lanes, the last group's padding among them."""
     if isinstance(geom, tuple):
         corner_ids, vertices = geom
         return vertices[corner_ids].reshape(-1, 9)
+    if geom.ndim == 3:
+        return np.ascontiguousarray(geom.transpose(0, 2, 1).reshape(-1, 9), dtype=np.float64)
     return geom.astype(np.float64)
 
 
 def prim_count(geom) -> int:
-    """How many primitives a layout holds."""
-    return len(geom[0]) if isinstance(geom, tuple) else len(geom)
+    """How many primitives a layout holds (in the lanes layout, its lanes: the last group's
+    padding repeats the last triangle)."""
+    if isinstance(geom, tuple):
+        return len(geom[0])
+    return len(geom) * LANES if geom.ndim == 3 else len(geom)
 
 
 def layout_nbytes(geom) -> int:
@@ -112,15 +132,56 @@ def layout_nbytes(geom) -> int:
     return int(sum(part.nbytes for part in geom)) if isinstance(geom, tuple) else int(geom.nbytes)
 
 
+def is_lanes(geom) -> bool:
+    """Whether ``geom`` is the lanes layout; in a kernel, a constant of its type."""
+    return isinstance(geom, np.ndarray) and geom.ndim == 3
+
+
+@overload(is_lanes)
+def _is_lanes(geom):
+    lanes = isinstance(geom, types.Array) and geom.ndim == 3
+    return lambda geom: lanes
+
+
+def lane_pointer(context, builder, lanes_type, lanes_value, group, row):
+    """The LLVM pointer (float*) to row ``row`` of group ``group`` (i64 values) of a lanes
+    layout: its four lanes' coordinate, at a constant stride of :data:`LANES` floats a row and
+    ``9 * LANES`` a group, where Numba's indexing would multiply by the shape read at run time."""
+    array = context.make_array(lanes_type)(context, builder, lanes_value)
+    int64 = ir.IntType(64)
+    offset = builder.add(builder.mul(group, int64(_GROUP_FLOATS)), builder.mul(row, int64(LANES)))
+    return builder.gep(array.data, [offset])
+
+
+@intrinsic
+def _lane_coordinate(typingctx, lanes, prim, row):
+    """Row ``row`` (coordinate ``k`` of corner ``j`` at ``3 j + k``) of triangle ``prim`` in a lanes layout."""
+    signature = types.float64(lanes, prim, row)
+
+    def codegen(context, builder, sig, args):
+        prim_value = context.cast(builder, args[1], sig.args[1], types.int64)
+        row_value = context.cast(builder, args[2], sig.args[2], types.int64)
+        int64 = ir.IntType(64)
+        pointer = lane_pointer(context, builder, sig.args[0], args[0], builder.lshr(prim_value, int64(2)), row_value)
+        value = builder.load(builder.gep(pointer, [builder.and_(prim_value, int64(LANES - 1))]))
+        return builder.fpext(value, ir.DoubleType())
+
+    return signature, codegen
+
+
 def corner(geom, prim, j, axis):
     """Coordinate ``axis`` of corner ``j`` of triangle ``prim`` in either layout, as a float."""
     if isinstance(geom, tuple):
         return float(geom[1][geom[0][prim, j], axis])
+    if geom.ndim == 3:
+        return float(geom[prim // LANES, 3 * j + axis, prim % LANES])
     return float(geom[prim, 3 * j + axis])
 
 
 @overload(corner)
 def _corner(geom, prim, j, axis):
+    if isinstance(geom, types.Array) and geom.ndim == 3:
+        return lambda geom, prim, j, axis: _lane_coordinate(geom, prim, 3 * j + axis)
     if isinstance(geom, types.Array):
         return lambda geom, prim, j, axis: np.float64(geom[unsigned(prim), unsigned(3 * j + axis)])
     return lambda geom, prim, j, axis: np.float64(geom[1][unsigned(geom[0][unsigned(prim), unsigned(j)]),
@@ -128,12 +189,20 @@ def _corner(geom, prim, j, axis):
 
 
 def prefetch_prim(geom, prim):
-    """Start loading what testing primitive ``prim`` reads first: its row, or its corner
-    indices (prefetching its first vertex as well measured the same). A no-op outside kernels."""
+    """Start loading what testing primitive ``prim`` reads first: its row, the three cache
+    lines of its group of lanes, or its corner indices (prefetching its first vertex as well
+    measured the same). A no-op outside kernels."""
 
 
 @overload(prefetch_prim)
 def _prefetch_prim(geom, prim):
+    if isinstance(geom, types.Array) and geom.ndim == 3:
+        def prefetch_group(geom, prim):
+            group = geom[unsigned(prim // LANES)]
+            prefetch(group, 0, 0)
+            prefetch(group, 4, 0)
+            prefetch(group, 8, 0)
+        return prefetch_group
     if isinstance(geom, types.Array):
         return lambda geom, prim: prefetch(geom, prim, 0)
     return lambda geom, prim: prefetch(geom[0], prim, 0)
@@ -141,13 +210,16 @@ def _prefetch_prim(geom, prim):
 
 def sphere_rows(geom):
     """``geom`` itself where it is rows (spheres: (n, 4)). A kernel that switches on the
-    primitive kind at run time is typed with both branches; given the indexed triangle
-    layout, its sphere branch, which never runs, sees the vertex array instead."""
+    primitive kind at run time is typed with both branches; given a triangle layout, its
+    sphere branch, which never runs, sees a 2-D array of it instead (the indexed layout's
+    vertices, the lanes layout's first group)."""
     return geom[1] if isinstance(geom, tuple) else geom
 
 
 @overload(sphere_rows)
 def _sphere_rows(geom):
+    if isinstance(geom, types.Array) and geom.ndim == 3:
+        return lambda geom: geom[0]
     if isinstance(geom, types.Array):
         return lambda geom: geom
     return lambda geom: geom[1]

@@ -39,13 +39,14 @@ import numpy as np
 
 from ..._jit import chunk_kernel, inline_kernel, prefetch, unsigned
 from ..._validate import unusable_ray
-from ...geometry.gather import prefetch_prim
+from ...geometry.gather import LANES, is_lanes, prefetch_prim
 from ...geometry.primitive import ray_setup
 from ...rays import ray_at, ray_limit, result_row
 from ..actions import COUNT, NEAREST, finish_ray_in_mode, finish_walked_ray, intersect_references, visit_prim_in_mode
 from .traverse import enter_box
+from .triangle_lanes import edges_admit
 from .wide import child_count, child_link
-from .wide_slab import enter_children, highest_bit
+from .wide_slab import enter_children, highest_bit, lowest_bit
 
 __all__ = ["wide_nearest_kernel", "wide_count_kernel", "wide_crossings_kernel", "prefetch_entry", "push_child",
            "descend", "visit_leaf", "walk_tree"]
@@ -130,17 +131,49 @@ def visit_leaf(mode, action, row, kind, geom, prim_order, first, count, ray, t_m
                any_hit):
     """Visit the ``count`` primitives of a leaf from row ``first`` of ``geom`` on with the action
     (:func:`..actions.visit_prim_in_mode`), stopping at the first hit of an any-hit walk:
-    ``(best_t, best_prim, best_u, best_v, tests)``, the walk's best hit and the primitives tested."""
-    tests = 0
-    for k in range(first, first + count):
-        tests += 1
+    ``(best_t, best_prim, best_u, best_v, tests)``, the walk's best hit and the primitives tested.
+
+    In the lanes layout of :mod:`rayaccel.geometry.gather` the leaf's triangles are taken a
+    group at a time: the edge functions of the group's lanes in the leaf first
+    (:func:`.triangle_lanes.edges_admit`), then the action on those admitted, in the leaf's
+    order; the others every test of a triangle would reject. Both ways share one call of the
+    action, so that the walk compiles one copy of the primitive tests."""
+    by_groups = is_lanes(geom)
+    end = first + count
+    group = first // LANES - 1
+    admitted = 0
+    k = first - 1
+    tests = count
+    while True:
+        if by_groups:
+            while admitted == 0 and LANES * (group + 1) < end:
+                group += 1
+                admitted = edges_admit(geom, group, ray[6], ray[7], ray[8], ray[12], ray[13], ray[14], ray[9],
+                                       ray[10]) & _lanes_within(first, end, group)
+            if admitted == 0:
+                break
+            k = LANES * group + lowest_bit(admitted)
+            admitted &= admitted - 1
+        else:
+            k += 1
+            if k >= end:
+                break
         best_t, best_prim, best_u, best_v, stop = visit_prim_in_mode(mode, action, row, kind, geom, k,
                                                                      prim_order[unsigned(k)],
                                                                      ray, t_min, best_t, best_prim, best_u, best_v,
                                                                      any_hit)
         if stop:
+            tests = k + 1 - first
             break
     return best_t, best_prim, best_u, best_v, tests
+
+
+@inline_kernel
+def _lanes_within(first, end, group):
+    """The mask of the lanes of group ``group`` that hold rows ``first`` to ``end - 1``."""
+    low = max(first - LANES * group, 0)
+    high = min(end - LANES * group, LANES)
+    return ((1 << high) - 1) & ~((1 << low) - 1)
 
 
 @inline_kernel

@@ -36,7 +36,8 @@ from numba.extending import intrinsic
 
 from .wide import WIDTH
 
-__all__ = ["enter_children", "highest_bit", "splat", "tighten_lanes", "tighten_to_slab", "entered_children"]
+__all__ = ["enter_children", "highest_bit", "lowest_bit", "splat", "tighten_lanes", "tighten_to_slab",
+           "entered_children"]
 
 
 @intrinsic
@@ -113,16 +114,33 @@ def entered_children(context, builder, entry_type, entry_array, enter, exit_):
     return builder.zext(builder.bitcast(entered, ir.IntType(WIDTH)), ir.IntType(64))
 
 
+def _zero_bits(builder, name, mask):
+    """The IR counting ``mask``'s zero bits from one end: LLVM's ``name``, ``ctlz`` (leading) or
+    ``cttz`` (trailing), on an int64 other than 0."""
+    int64 = ir.IntType(64)
+    count = cgutils.get_or_insert_function(builder.module, ir.FunctionType(int64, [int64, ir.IntType(1)]),
+                                           f"llvm.{name}.i64")
+    return builder.call(count, [mask, ir.IntType(1)(1)])
+
+
 @intrinsic
 def highest_bit(typingctx, mask):
     """The index of the highest set bit of ``mask`` (an int64 other than 0): one ``lzcnt``."""
     signature = types.int64(mask)
 
     def codegen(context, builder, sig, args):
-        int64 = ir.IntType(64)
-        count_zeros = cgutils.get_or_insert_function(builder.module, ir.FunctionType(int64, [int64, ir.IntType(1)]),
-                                                     "llvm.ctlz.i64")
         mask_value = context.cast(builder, args[0], sig.args[0], types.int64)
-        return builder.sub(int64(63), builder.call(count_zeros, [mask_value, ir.IntType(1)(1)]))
+        return builder.sub(ir.IntType(64)(63), _zero_bits(builder, "ctlz", mask_value))
+
+    return signature, codegen
+
+
+@intrinsic
+def lowest_bit(typingctx, mask):
+    """The index of the lowest set bit of ``mask`` (an int64 other than 0): one ``tzcnt``."""
+    signature = types.int64(mask)
+
+    def codegen(context, builder, sig, args):
+        return _zero_bits(builder, "cttz", context.cast(builder, args[0], sig.args[0], types.int64))
 
     return signature, codegen

@@ -30,9 +30,10 @@ from .traverse_packet import PACKET, PACKET_ROWS, kdtree_packet_kernel
 __all__ = ["KdTree", "ROWS_BYTES_PER_TRIANGLE"]
 
 _MAX_PRIMS = 1 << 28  # leaf counts are stored as count << 2 in an int32
-_ROW_BYTES = 9 * 4  # a float32 row: a triangle's three corners
+_ROW_BYTES = 9 * 4  # a triangle's three corners in float32
 ROWS_BYTES_PER_TRIANGLE = 90.0
-"""The most bytes a triangle the kd-tree spends to keep its triangles as float32 rows, under the
+"""The most bytes a triangle the kd-tree spends to keep its triangles in float32 (the lanes layout
+of :mod:`rayaccel.geometry.gather`), under the
 91.9 that Embree's BVH holds on the full dragon (measured here): the budget of every layout."""
 _BATCHES_PER_THREAD = 4
 
@@ -223,7 +224,7 @@ class KdTree(Accelerator):
     def _derive_from_tree(self) -> None:
         """What the queries read besides the built (or loaded) tree: the primitives in reference
         order, read one after the other at a leaf (:meth:`~rayaccel.scene.TriangleMesh.gather`),
-        and the tree's depth, which sizes the walks' stacks. Triangles are float32 rows, 36 bytes
+        and the tree's depth, which sizes the walks' stacks. Triangles are float32 lanes, 36 bytes
         a reference, when the mesh is exact in float32 and the structure then stays within
         :data:`ROWS_BYTES_PER_TRIANGLE`, else indexed: rows spare a leaf's test the dependent
         load of its vertices. On the full dragon (leaf size 4 then, 1.75 references a
@@ -283,7 +284,7 @@ class KdTree(Accelerator):
         return tree, tasks
 
     def _rows_fit(self) -> bool:
-        """Whether the triangles can be float32 rows in reference order (:meth:`_derive_from_tree`):
+        """Whether the triangles can be float32 lanes in reference order (:meth:`_derive_from_tree`):
         exact in float32, and the tree, its references and the rows within
         :data:`ROWS_BYTES_PER_TRIANGLE`."""
         scene = self.scene
