@@ -39,11 +39,13 @@ from numba.extending import intrinsic, overload
 
 from .._jit import kernel, on_threads, prefetch, unsigned
 
-__all__ = ["LANES", "gather_triangles", "layout_rows", "prim_count", "layout_nbytes", "corner", "prefetch_prim",
-           "sphere_rows", "float32_exact", "is_lanes", "lane_pointer"]
+__all__ = ["LANES", "LANE_BITS", "gather_triangles", "layout_rows", "prim_count", "layout_nbytes", "corner",
+           "prefetch_prim", "sphere_rows", "float32_exact", "is_lanes", "lane_pointer"]
 
-LANES = 4
-"""Triangles a group of the lanes layout holds: their float64 coordinates fill an AVX2 register."""
+LANE_BITS = 2
+LANES = 1 << LANE_BITS
+"""Triangles a group of the lanes layout holds: their float64 coordinates fill an AVX2 register.
+Triangle ``k`` is lane ``k & (LANES - 1)`` of group ``k >> LANE_BITS``."""
 _GROUP_FLOATS = 9 * LANES
 
 
@@ -162,7 +164,8 @@ def _lane_coordinate(typingctx, lanes, prim, row):
         prim_value = context.cast(builder, args[1], sig.args[1], types.int64)
         row_value = context.cast(builder, args[2], sig.args[2], types.int64)
         int64 = ir.IntType(64)
-        pointer = lane_pointer(context, builder, sig.args[0], args[0], builder.lshr(prim_value, int64(2)), row_value)
+        group = builder.lshr(prim_value, int64(LANE_BITS))
+        pointer = lane_pointer(context, builder, sig.args[0], args[0], group, row_value)
         value = builder.load(builder.gep(pointer, [builder.and_(prim_value, int64(LANES - 1))]))
         return builder.fpext(value, ir.DoubleType())
 
@@ -198,7 +201,7 @@ def prefetch_prim(geom, prim):
 def _prefetch_prim(geom, prim):
     if isinstance(geom, types.Array) and geom.ndim == 3:
         def prefetch_group(geom, prim):
-            group = geom[unsigned(prim // LANES)]
+            group = geom[unsigned(prim >> LANE_BITS)]
             prefetch(group, 0, 0)
             prefetch(group, 4, 0)
             prefetch(group, 8, 0)

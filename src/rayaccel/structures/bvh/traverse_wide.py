@@ -39,7 +39,7 @@ import numpy as np
 
 from ..._jit import chunk_kernel, inline_kernel, prefetch, unsigned
 from ..._validate import unusable_ray
-from ...geometry.gather import LANES, is_lanes, prefetch_prim
+from ...geometry.gather import LANE_BITS, LANES, is_lanes, prefetch_prim
 from ...geometry.primitive import ray_setup
 from ...rays import ray_at, ray_limit, result_row
 from ..actions import COUNT, NEAREST, finish_ray_in_mode, finish_walked_ray, intersect_references, visit_prim_in_mode
@@ -140,7 +140,7 @@ def visit_leaf(mode, action, row, kind, geom, prim_order, first, count, ray, t_m
     action, so that the walk compiles one copy of the primitive tests."""
     by_groups = is_lanes(geom)
     end = first + count
-    group = first // LANES - 1
+    group = (first >> LANE_BITS) - 1
     admitted = 0
     k = first - 1
     tests = count
