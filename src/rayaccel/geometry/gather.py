@@ -26,8 +26,10 @@ stays float64 whichever layout holds them, so the triangle test computes the
 same values bit for bit. Measured against float64 rows (72 bytes per
 triangle), same hits, one thread, medians of 7 interleaved rounds, in every
 column (camera, incoherent and shadow rays, closest and any hit): float32 rows
-on the full dragon 1.00-1.06 (0.96-1.07 on two threads); the indexed layout on
-the forest 0.97-1.01 and on the bunny 0.99-1.03.
+(the lanes' predecessor, (n, 9), read one triangle at a time) on the full dragon
+1.00-1.06 (0.96-1.07 on two threads); the indexed layout on the forest
+0.97-1.01 and on the bunny 0.99-1.03. The lanes against those rows: see
+:func:`rayaccel.structures.bvh.traverse_wide.visit_leaf` and the README.
 """
 
 from __future__ import annotations
