@@ -433,7 +433,7 @@ def test_edges_of_four_lanes_admit_every_triangle_the_full_test_hits():
 
 
 def test_refit_to_vertices_float32_cannot_hold_changes_the_layout(small_dragon):
-    """Moved vertices that float32 cannot hold turn the dragon's float32 rows into the indexed
+    """Moved vertices that float32 cannot hold turn the dragon's float32 lanes into the indexed
     layout at the refit, and the hits stay brute force's."""
     accel = ra.build(small_dragon, "bvh-binned")
     moved = small_dragon.vertices + 1e-3 / 3

@@ -46,6 +46,19 @@ def test_refit_equals_a_fresh_build(method, small_dragon, deformed, deformed_ray
     assert stats["sah_cost"] != stats["sah_cost_at_build"] > 0
 
 
+def test_refit_to_float32_vertices_rewrites_the_lanes_in_place(small_dragon, deformed, deformed_rays):
+    """Moved vertices that are float32 numbers keep the dragon's triangles in float32 lanes, which
+    the refit writes over in place, and the hits are brute force's on the moved mesh."""
+    moved = ra.TriangleMesh(deformed.vertices.astype(np.float32), deformed.faces)
+    accel = ra.build(small_dragon, "bvh-binned")
+    lanes = accel.geometry
+    accel.refit(moved.vertices)
+    assert accel.geometry is lanes
+    reference = ra.build(moved, "none")
+    assert_same_hits(reference.intersect(*deformed_rays), accel.intersect(*deformed_rays))
+    np.testing.assert_array_equal(accel.count(*deformed_rays), reference.count(*deformed_rays))
+
+
 @pytest.mark.parametrize("options", [{"bounds": "sphere"}, {"bounds": "kdop"}, {"width": 2}])
 def test_refit_other_volumes(options, small_dragon, deformed, deformed_rays):
     accel = ra.build(small_dragon, "bvh-binned", **options)
