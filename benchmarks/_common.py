@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
+import rayaccel as ra
 from rayaccel._timing import median_seconds  # noqa: F401  (re-exported for the scripts)
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -48,8 +49,6 @@ def scene_every_subject_traces(name: str):
     float32 already; the procedural forest is built in float64, and given as it is, rayaccel would
     trace triangles a few float32 ulps away from the peers' (and keep them in its indexed layout
     instead of float32 lanes, :mod:`rayaccel.geometry.gather`)."""
-    import rayaccel as ra
-
     scene = ra.load_scene(name)
     if isinstance(scene, ra.TriangleMesh) and not scene.float32_exact:
         scene = ra.TriangleMesh(scene.vertices.astype(np.float32), scene.faces)
@@ -114,8 +113,6 @@ def primary_rays(scene, side: int):
 
 def scene_camera(scene):
     """The camera that frames the scene's box from the front, slightly above and to the right."""
-    import rayaccel as ra
-
     b = scene.bounds()
     return ra.Camera.framing(b.scene_lo, b.scene_hi)
 

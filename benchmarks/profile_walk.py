@@ -79,7 +79,8 @@ def trace(args) -> None:
 
     set_threads(args.threads)
     scene = scene_every_subject_traces(args.scene)
-    accel = ra.build(scene, args.method, **dict(args.option))
+    needs_accel = args.peer == "rayaccel" or args.rays == "shadow"
+    accel = ra.build(scene, args.method, **dict(args.option)) if needs_accel else None
     t_min, t_max = 0.0, np.inf
     if args.rays == "incoherent":
         origins, directions = incoherent_rays(scene, args.side * args.side)
@@ -89,8 +90,9 @@ def trace(args) -> None:
         hits = accel.intersect(origins, directions)
         origins, directions = shadow_rays(origins, directions, hits.t, light_position(scene))
         t_min, t_max = 1e-4, 1.0
-    query = accel.intersect if args.query == "closest" else accel.occluded
-    if args.peer == "embree":
+    if args.peer == "rayaccel":
+        query = accel.intersect if args.query == "closest" else accel.occluded
+    else:
         from peers import EmbreePeer, RaySet
 
         embree = EmbreePeer(scene)

@@ -42,7 +42,7 @@ from numba.extending import intrinsic, overload
 from .._jit import kernel, on_threads, prefetch, unsigned
 
 __all__ = ["LANES", "LANE_BITS", "gather_triangles", "layout_rows", "prim_count", "layout_nbytes", "corner",
-           "prefetch_prim", "sphere_rows", "float32_exact", "is_lanes", "lane_pointer"]
+           "prefetch_prim", "sphere_rows", "float32_exact", "is_lanes", "is_lanes_type", "lane_pointer"]
 
 LANE_BITS = 2
 LANES = 1 << LANE_BITS
@@ -118,7 +118,7 @@ def layout_rows(geom) -> np.ndarray:
     if isinstance(geom, tuple):
         corner_ids, vertices = geom
         return vertices[corner_ids].reshape(-1, 9)
-    if geom.ndim == 3:
+    if is_lanes(geom):
         return np.ascontiguousarray(geom.transpose(0, 2, 1).reshape(-1, 9), dtype=np.float64)
     return geom.astype(np.float64)
 
@@ -128,7 +128,7 @@ def prim_count(geom) -> int:
     padding repeats the last triangle)."""
     if isinstance(geom, tuple):
         return len(geom[0])
-    return len(geom) * LANES if geom.ndim == 3 else len(geom)
+    return len(geom) * LANES if is_lanes(geom) else len(geom)
 
 
 def layout_nbytes(geom) -> int:
@@ -141,9 +141,14 @@ def is_lanes(geom) -> bool:
     return isinstance(geom, np.ndarray) and geom.ndim == 3
 
 
+def is_lanes_type(geom_type) -> bool:
+    """Whether ``geom_type``, a layout's Numba type, is the lanes layout's (for overloads and intrinsics)."""
+    return isinstance(geom_type, types.Array) and geom_type.ndim == 3
+
+
 @overload(is_lanes)
 def _is_lanes(geom):
-    lanes = isinstance(geom, types.Array) and geom.ndim == 3
+    lanes = is_lanes_type(geom)
     return lambda geom: lanes
 
 
@@ -178,14 +183,14 @@ def corner(geom, prim, j, axis):
     """Coordinate ``axis`` of corner ``j`` of triangle ``prim`` in either layout, as a float."""
     if isinstance(geom, tuple):
         return float(geom[1][geom[0][prim, j], axis])
-    if geom.ndim == 3:
+    if is_lanes(geom):
         return float(geom[prim // LANES, 3 * j + axis, prim % LANES])
     return float(geom[prim, 3 * j + axis])
 
 
 @overload(corner)
 def _corner(geom, prim, j, axis):
-    if isinstance(geom, types.Array) and geom.ndim == 3:
+    if is_lanes_type(geom):
         return lambda geom, prim, j, axis: _lane_coordinate(geom, prim, 3 * j + axis)
     if isinstance(geom, types.Array):
         return lambda geom, prim, j, axis: np.float64(geom[unsigned(prim), unsigned(3 * j + axis)])
@@ -201,7 +206,7 @@ def prefetch_prim(geom, prim):
 
 @overload(prefetch_prim)
 def _prefetch_prim(geom, prim):
-    if isinstance(geom, types.Array) and geom.ndim == 3:
+    if is_lanes_type(geom):
         def prefetch_group(geom, prim):
             group = geom[unsigned(prim >> LANE_BITS)]
             prefetch(group, 0, 0)
@@ -223,7 +228,7 @@ def sphere_rows(geom):
 
 @overload(sphere_rows)
 def _sphere_rows(geom):
-    if isinstance(geom, types.Array) and geom.ndim == 3:
+    if is_lanes_type(geom):
         return lambda geom: geom[0]
     if isinstance(geom, types.Array):
         return lambda geom: geom

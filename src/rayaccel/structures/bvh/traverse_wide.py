@@ -141,8 +141,10 @@ def visit_leaf(mode, action, row, kind, geom, prim_order, first, count, ray, t_m
     copies by the layout's type, an overload, took the first compile from 15 to 29 s of CPU).
     Counted against float32 rows tested one by one (``benchmarks/profile_walk.py --count``, 2**14
     incoherent rays, one thread, closest hit): forest-small-chair rounded to float32 1,336 ->
-    1,247 instructions a ray, dragon-203k 1,235 -> 1,154; the same hits."""
+    1,247 instructions a ray, dragon-203k 1,235 -> 1,154; the forest's closest and any hits the same
+    on 2**18 incoherent rays."""
     by_groups = is_lanes(geom)
+    _, _, _, _, _, _, kx, ky, kz, sx, sy, _, okx, oky, okz = ray
     end = first + count
     group = (first >> LANE_BITS) - 1
     admitted = 0
@@ -152,8 +154,8 @@ def visit_leaf(mode, action, row, kind, geom, prim_order, first, count, ray, t_m
         if by_groups:
             while admitted == 0 and LANES * (group + 1) < end:
                 group += 1
-                admitted = edges_admit(geom, group, ray[6], ray[7], ray[8], ray[12], ray[13], ray[14], ray[9],
-                                       ray[10]) & _lanes_within(first, end, group)
+                admitted = edges_admit(geom, group, kx, ky, kz, okx, oky, okz, sx, sy)
+                admitted &= _lanes_within(first, end, group)
             if admitted == 0:
                 break
             k = LANES * group + lowest_bit(admitted)

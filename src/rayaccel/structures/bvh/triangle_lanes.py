@@ -25,7 +25,7 @@ from llvmlite import ir
 from numba import types
 from numba.extending import intrinsic
 
-from ...geometry.gather import LANES, lane_pointer
+from ...geometry.gather import LANES, is_lanes_type, lane_pointer
 from .wide_slab import splat
 
 __all__ = ["edges_admit"]
@@ -44,7 +44,7 @@ def edges_admit(typingctx, lanes, group, kx, ky, kz, okx, oky, okz, sx, sy):
 
     def codegen(context, builder, sig, args):
         int64 = ir.IntType(64)
-        if not (isinstance(sig.args[0], types.Array) and sig.args[0].ndim == 3):
+        if not is_lanes_type(sig.args[0]):
             return int64((1 << LANES) - 1)
         group_value = context.cast(builder, args[1], sig.args[1], types.int64)
         axes = [context.cast(builder, value, sig.args[2 + i], types.int64) for i, value in enumerate(args[2:5])]
