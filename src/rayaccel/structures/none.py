@@ -33,7 +33,7 @@ def brute_force_kernel(ray_first, ray_end, tid, kind, geom, origins, directions,
         tests = 0
         for prim in range(n_prims):
             tests += 1
-            best_t, best_prim, best_u, best_v, stop = visit_prim(action, row, kind, geom, prim, prim, ray,
+            best_t, best_prim, best_u, best_v, stop = visit_prim(action, row, kind, geom, prim, None, prim, ray,
                                                                  ray_t_min, best_t, best_prim, best_u, best_v, any_hit)
             if stop:
                 break

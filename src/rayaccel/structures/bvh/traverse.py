@@ -156,7 +156,7 @@ def _walk(ray_first, ray_end, tid, bounds_kind, node_box, node_volume, node_link
                 for k in range(first, first + count):
                     n_tests += 1
                     best_t, best_prim, best_u, best_v, stop = visit_prim_in_mode(mode, action, row, kind, geom, k,
-                                                                                 prim_order[k], ray, ray_t_min,
+                                                                                 prim_order, k, ray, ray_t_min,
                                                                                  best_t, best_prim, best_u, best_v,
                                                                                  any_hit)
                     if stop:

@@ -164,10 +164,9 @@ def visit_leaf(mode, action, row, kind, geom, prim_order, first, count, ray, t_m
             k += 1
             if k >= end:
                 break
-        best_t, best_prim, best_u, best_v, stop = visit_prim_in_mode(mode, action, row, kind, geom, k,
-                                                                     prim_order[unsigned(k)],
-                                                                     ray, t_min, best_t, best_prim, best_u, best_v,
-                                                                     any_hit)
+        best_t, best_prim, best_u, best_v, stop = visit_prim_in_mode(mode, action, row, kind, geom, k, prim_order,
+                                                                     unsigned(k), ray, t_min, best_t, best_prim,
+                                                                     best_u, best_v, any_hit)
         if stop:
             tests = k + 1 - first
             break
