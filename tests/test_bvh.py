@@ -20,6 +20,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import rayaccel as ra
+from rayaccel._memory import cache_line_aligned
 from rayaccel.geometry.gather import layout_rows, prim_count
 from rayaccel.geometry.kdop import KDOP_NORMALS
 from rayaccel.structures.bvh.nodes import node_depths
@@ -286,20 +287,22 @@ def test_random_scenes_property(n, seed, method, volume, leaf, reinsertion):
 
 @functools.cache
 def _vector_and_scalar_child_tests():
-    """A kernel running the eight-lane slab test and the scalar one on the same node, compiled
-    once for every example of the property below."""
+    """A kernel running the eight-lane float32 slab test and the exact scalar one on the same node,
+    compiled once for every example of the properties below."""
     from numba import njit
 
     from rayaccel.structures.bvh.traverse import enter_box
-    from rayaccel.structures.bvh.wide_slab import enter_children
+    from rayaccel.structures.bvh.wide_slab import box_reach, enter_children, slab_limits, slab_ray
 
     @njit(error_model="numpy")
-    def both(records, boxes, node, o, d, t_min, t_max):
+    def both(records, boxes, bound, node, o, d, t_min, t_max):
         inv = (1.0 / d[0], 1.0 / d[1], 1.0 / d[2])
         near = (0 if inv[0] >= 0.0 else 3, 1 if inv[1] >= 0.0 else 4, 2 if inv[2] >= 0.0 else 5)
+        reach = box_reach(bound, 0)
+        slab = slab_ray(o[0], o[1], o[2], d[0], d[1], d[2], inv[0], inv[1], inv[2], reach[0], reach[1], reach[2])
+        enter_from, exit_by = slab_limits(slab, t_min, t_max)
         vector = np.empty(WIDTH)
-        mask = enter_children(records, node, near[0], near[1], near[2], (o[0], o[1], o[2]), inv, t_min, t_max,
-                              vector)
+        mask = enter_children(records, node, near[0], near[1], near[2], slab, enter_from, exit_by, vector)
         scalar = [enter_box(boxes, c, o[0], o[1], o[2], inv[0], inv[1], inv[2], near[0], near[1], near[2], t_min,
                             t_max) for c in range(WIDTH)]
         return vector, scalar, mask
@@ -307,32 +310,75 @@ def _vector_and_scalar_child_tests():
     return both
 
 
-@settings(max_examples=60, deadline=None)
+def _wide_node(lo, hi, used):
+    """A wide record of the children ``lo``, ``hi`` (WIDTH, 3) whose slots ``used`` holds (the
+    others empty, as :mod:`rayaccel.structures.bvh.wide` leaves them), their float64 boxes, and
+    the box around them all."""
+    lo, hi = lo.copy(), hi.copy()
+    lo[~used], hi[~used] = np.inf, -np.inf
+
+    records = cache_line_aligned((1, 8 * WIDTH), np.float32)
+    records[0, :3 * WIDTH] = lo.T.ravel()
+    records[0, 3 * WIDTH:6 * WIDTH] = hi.T.ravel()
+    bound = np.hstack([lo[used].min(axis=0), hi[used].max(axis=0)])[None, :]
+    return records, np.hstack([lo, hi]).astype(np.float64), bound
+
+
+@settings(max_examples=80, deadline=None)
 @given(seed=st.integers(0, 2**32 - 1), zero_axes=st.sets(st.integers(0, 2)), on_plane=st.booleans(),
-       scale=st.sampled_from([1e-20, 1e-3, 1.0, 1e7, 1e20]))
-def test_vector_child_test_equals_the_scalar_slab_test(seed, zero_axes, on_plane, scale):
-    """The eight-lane slab test of the wide layout culls exactly what the scalar test culls, for
-    zero direction components of either sign, origins on slab planes, and any magnitude; its mask
-    has bit ``c`` set exactly where child ``c`` is entered."""
+       scale=st.sampled_from([1e-20, 1e-3, 1.0, 1e7, 1e20]), length=st.sampled_from([1e-30, 1e-3, 1.0, 1e9, 1e30]),
+       t_min=st.sampled_from([0.0, 0.25, -1.0]), t_max=st.sampled_from([np.inf, 1.5, 0.3]))
+def test_vector_child_test_enters_what_the_exact_test_enters(seed, zero_axes, on_plane, scale, length, t_min,
+                                                             t_max):
+    """The eight-lane float32 slab test of the wide layout is conservative: it enters every child
+    the exact float64 test enters, at a distance no greater than the exact one, for zero direction
+    components of either sign, origins on slab planes, coordinates and directions of any
+    magnitude, and any ``[t_min, t_max]``; the others it enters lie within ``2**-17`` of the
+    coordinates' size of the ray (the exact test enters them grown by that much); it never
+    enters an empty slot; its mask has bit ``c`` set exactly where ``entry[c]`` is finite."""
     both = _vector_and_scalar_child_tests()
     rng = np.random.default_rng(seed)
     lo = (rng.uniform(-1, 1, (WIDTH, 3)) * scale).astype(np.float32)
     hi = lo + (rng.uniform(0, 1, (WIDTH, 3)) * scale).astype(np.float32)
-    records = np.zeros((1, 8 * WIDTH), dtype=np.float32)
-    records[0, :3 * WIDTH] = lo.T.ravel()
-    records[0, 3 * WIDTH:6 * WIDTH] = hi.T.ravel()
-    boxes = np.hstack([lo, hi]).astype(np.float64)
+    used = rng.random(WIDTH) < 0.8
+    used[0] = True
+    records, boxes, bound = _wide_node(lo, hi, used)
     origin = rng.uniform(-2, 2, 3) * scale
-    direction = rng.normal(size=3)
+    direction = rng.normal(size=3) * length * scale
     for axis in zero_axes:
         direction[axis] = rng.choice([0.0, -0.0])
         if on_plane:
             origin[axis] = lo[rng.integers(WIDTH), axis]
     if not direction.any():
-        direction[0] = 1.0
-    vector, scalar, mask = both(records, boxes, 0, origin, direction, 0.0, np.inf)
-    np.testing.assert_array_equal(vector, np.array(scalar))
+        direction[0] = length
+    t_min, t_max = t_min / length, t_max / length
+    vector, scalar, mask = both(records, boxes, bound, 0, origin, direction, t_min, t_max)
+    scalar = np.array(scalar)
+    exact = scalar != np.inf
+    assert np.all(vector[exact] <= scalar[exact])
     assert mask == sum(1 << c for c in range(WIDTH) if vector[c] != np.inf)
+    assert not np.any(np.isfinite(vector[~used]))
+    margin = 2.0 ** -17 * (np.abs(bound).max(axis=0).reshape(2, 3).max(axis=0) + np.abs(origin))
+    grown = np.hstack([boxes[:, :3] - margin, boxes[:, 3:] + margin])
+    _, loose, _ = both(records, grown, bound, 0, origin, direction, t_min, t_max)
+    assert np.all(np.array(loose)[np.isfinite(vector)] != np.inf)
+
+
+def test_vector_child_test_enters_every_box_for_rays_beyond_float32_distances():
+    """A ray whose distances float32 cannot bound (a direction component below ``2**-100`` of the
+    largest but not zero, coordinates beyond ``2**100``) enters every child in use, and no empty
+    slot."""
+    both = _vector_and_scalar_child_tests()
+    rng = np.random.default_rng(3)
+    lo = rng.uniform(-1, 1, (WIDTH, 3)).astype(np.float32)
+    hi = lo + rng.uniform(0, 1, (WIDTH, 3)).astype(np.float32)
+    used = np.arange(WIDTH) < 6
+    records, boxes, bound = _wide_node(lo, hi, used)
+    for origin, direction in (((5.0, 0.5, 0.5), (-1.0, 1e-35, 0.0)), ((2.0 ** 110, 0.5, 0.5), (-1.0, 0.0, 0.0))):
+        vector, scalar, mask = both(records, boxes, bound, 0, np.array(origin), np.array(direction), 0.0, np.inf)
+        exact = np.array(scalar) != np.inf
+        assert mask == (1 << 6) - 1
+        assert np.all(vector[exact] <= np.array(scalar)[exact])
 
 
 def test_highest_and_lowest_bit():

@@ -56,7 +56,7 @@ from ...rays import ray_at, ray_limit, result_row
 from ..actions import COUNT, NEAREST, finish_misses_in_mode, finish_walked_ray
 from .traverse import enter_box
 from .traverse_wide import descend, visit_leaf
-from .wide_slab import enter_children
+from .wide_slab import SLAB_FLOATS, box_reach, enter_children, slab_limits, slab_ray
 
 __all__ = ["SLOTS", "SLOT_INTS", "SLOT_FLOATS", "interleaved_nearest_kernel", "interleaved_count_kernel",
            "interleaved_crossings_kernel"]
@@ -69,14 +69,16 @@ SLOT_INTS = RAY_INTS + 11
 """Integers of a ray's state: the ray's shear axes, its index (-1: the slot is free), its next
 stack entry (link and primitive count: 0 for a node), stack size, best primitive, near faces
 and work counters."""
-_INV_X, _INV_Y, _INV_Z, _BEST_T, _BEST_U, _BEST_V = range(RAY_FLOATS, RAY_FLOATS + 6)
-SLOT_FLOATS = RAY_FLOATS + 6
-"""Floats of a ray's state: its constants of ``ray_setup``, inverse direction and best hit."""
+_SLAB = RAY_FLOATS
+_BEST_T, _BEST_U, _BEST_V, _ENTER_FROM, _EXIT_BY = range(_SLAB + SLAB_FLOATS, _SLAB + SLAB_FLOATS + 5)
+SLOT_FLOATS = _EXIT_BY + 1
+"""Floats of a ray's state: its constants of ``ray_setup`` and of the slab test, its best hit
+and the slab test's bounds on its interval (float32 numbers kept as float64)."""
 
 
 @inline_kernel
-def _take_ray(slot, next_ray, ray_end, ints, floats, root_box, origins, directions, t_min, t_max, hit_slot, mode,
-              action, work):
+def _take_ray(slot, next_ray, ray_end, ints, floats, root_box, reach, origins, directions, t_min, t_max, hit_slot,
+              mode, action, work):
     """Put the next ray of the chunk that enters the whole tree's box into free ``slot``, at the
     root, finishing the rays before it as misses; returns the index after it. The slot stays
     free (ray -1) when the chunk has no ray left."""
@@ -105,14 +107,39 @@ def _take_ray(slot, next_ray, ray_end, ints, floats, root_box, origins, directio
         ints[slot, _NODES] = 0
         ints[slot, _TESTS] = 0
         ints[slot, _LEAVES] = 0
-        floats[slot, _INV_X] = ix
-        floats[slot, _INV_Y] = iy
-        floats[slot, _INV_Z] = iz
+        _keep_slab(slab_ray(ox, oy, oz, dx, dy, dz, ix, iy, iz, reach[0], reach[1], reach[2]), floats, slot)
         floats[slot, _BEST_T] = ray_t_max
+        _keep_limits(floats, slot, ray_limit(t_min, i), ray_t_max)
         floats[slot, _BEST_U] = 0.0
         floats[slot, _BEST_V] = 0.0
         break
     return next_ray
+
+
+@inline_kernel
+def _keep_slab(slab, floats, slot):
+    """Keep the ray's :func:`.wide_slab.slab_ray` in row ``slot`` (:func:`_load_slab`)."""
+    floats[slot, _SLAB], floats[slot, _SLAB + 1], floats[slot, _SLAB + 2] = slab[0], slab[1], slab[2]
+    floats[slot, _SLAB + 3], floats[slot, _SLAB + 4], floats[slot, _SLAB + 5] = slab[3], slab[4], slab[5]
+    floats[slot, _SLAB + 6], floats[slot, _SLAB + 7], floats[slot, _SLAB + 8] = slab[6], slab[7], slab[8]
+    floats[slot, _SLAB + 9], floats[slot, _SLAB + 10] = slab[9], slab[10]
+
+
+@inline_kernel
+def _keep_limits(floats, slot, t_min, t_max):
+    """Keep the :func:`.wide_slab.slab_limits` of ``[t_min, t_max]`` in row ``slot``, for the
+    steps up to the ray's next leaf."""
+    floats[slot, _ENTER_FROM], floats[slot, _EXIT_BY] = slab_limits(_load_slab(floats, slot), t_min, t_max)
+
+
+@inline_kernel
+def _load_slab(floats, slot):
+    """The :func:`.wide_slab.slab_ray` that :func:`_take_ray` kept in row ``slot``."""
+    return (np.float32(floats[slot, _SLAB]), np.float32(floats[slot, _SLAB + 1]),
+            np.float32(floats[slot, _SLAB + 2]), np.float32(floats[slot, _SLAB + 3]),
+            np.float32(floats[slot, _SLAB + 4]), np.float32(floats[slot, _SLAB + 5]),
+            np.float32(floats[slot, _SLAB + 6]), np.float32(floats[slot, _SLAB + 7]),
+            np.float32(floats[slot, _SLAB + 8]), floats[slot, _SLAB + 9], floats[slot, _SLAB + 10])
 
 
 @inline_kernel
@@ -134,6 +161,7 @@ def _walk(ray_first, ray_end, tid, root_box, records, links, prim_order, kind, g
     child_entry = entry[tid]
     ints = slot_ints[tid]
     floats = slot_floats[tid]
+    reach = box_reach(root_box, 0)
     next_ray = ray_first
     for slot in range(slots):
         ints[slot, _RAY] = -1
@@ -145,8 +173,8 @@ def _walk(ray_first, ray_end, tid, root_box, records, links, prim_order, kind, g
             if i < 0:
                 if next_ray == ray_end:
                     continue
-                next_ray = _take_ray(slot, next_ray, ray_end, ints, floats, root_box, origins, directions, t_min,
-                                     t_max, hit_slot, mode, action, work)
+                next_ray = _take_ray(slot, next_ray, ray_end, ints, floats, root_box, reach, origins, directions,
+                                     t_min, t_max, hit_slot, mode, action, work)
                 i = ints[slot, _RAY]
                 if i < 0:
                     continue
@@ -162,9 +190,9 @@ def _walk(ray_first, ray_end, tid, root_box, records, links, prim_order, kind, g
             next_count = -1
             if count == 0:
                 entered = enter_children(records, link, ints[slot, _NEAR_X], ints[slot, _NEAR_Y],
-                                         ints[slot, _NEAR_Z], (ray[0], ray[1], ray[2]),
-                                         (floats[slot, _INV_X], floats[slot, _INV_Y], floats[slot, _INV_Z]),
-                                         ray_t_min, best_t, child_entry)
+                                         ints[slot, _NEAR_Z], _load_slab(floats, slot),
+                                         np.float32(floats[slot, _ENTER_FROM]), np.float32(floats[slot, _EXIT_BY]),
+                                         child_entry)
                 if entered != 0:
                     link, next_count, sp = descend(records, links, geom, link, entered, child_entry, stack_link,
                                                    stack_count, stack_t, stack, sp, nearest_first, True)
@@ -176,6 +204,7 @@ def _walk(ray_first, ray_end, tid, root_box, records, links, prim_order, kind, g
                                                                       floats[slot, _BEST_V], any_hit)
                 ints[slot, _TESTS] += tests
                 floats[slot, _BEST_T] = best_t
+                _keep_limits(floats, slot, ray_t_min, best_t)
                 ints[slot, _PRIM] = best_prim
                 floats[slot, _BEST_U] = best_u
                 floats[slot, _BEST_V] = best_v

@@ -46,7 +46,7 @@ from ..actions import COUNT, NEAREST, finish_ray_in_mode, finish_walked_ray, int
 from .traverse import enter_box
 from .triangle_lanes import edges_admit
 from .wide import child_count, child_link
-from .wide_slab import enter_children, highest_bit, lowest_bit
+from .wide_slab import box_reach, enter_children, highest_bit, lowest_bit, slab_limits, slab_ray
 
 __all__ = ["wide_nearest_kernel", "wide_count_kernel", "wide_crossings_kernel", "prefetch_entry", "push_child",
            "descend", "visit_leaf", "walk_tree"]
@@ -182,8 +182,8 @@ def _lanes_within(first, end, group):
 
 
 @inline_kernel
-def walk_tree(mode, action, row, records, links, prim_order, kind, geom, mailbox, tid, stamp, root, origin, inv_dir,
-              near_x, near_y, near_z, ray, t_min, span_lo, span_hi, best_t, best_prim, best_u, best_v, any_hit,
+def walk_tree(mode, action, row, records, links, prim_order, kind, geom, mailbox, tid, stamp, root, slab, near_x,
+              near_y, near_z, ray, t_min, span_lo, span_hi, best_t, best_prim, best_u, best_v, any_hit,
               stack_link, stack_count, stack_t, child_entry):
     """Walk one ray (from ``t_min`` on) through the wide tree rooted at ``root``, its stack in row
     ``tid``, entering boxes within ``[span_lo, min(best_t, span_hi)]`` and giving each primitive of
@@ -194,7 +194,7 @@ def walk_tree(mode, action, row, records, links, prim_order, kind, geom, mailbox
     before Numba types the walk, so that only one of the two is compiled: the BVH's own walks
     pass ``None`` (the first ``intersect`` on an empty cache took 8.5 s of CPU instead of 10.5,
     bunny, 2026-11-27), the grid-BVH's walks ``None`` or a mailbox (see :mod:`..hybrid.traverse`).
-    ``origin``, ``inv_dir`` and ``near_*`` as for :func:`.wide_slab.enter_children`, ``ray`` the
+    ``slab`` and ``near_*`` as for :func:`.wide_slab.enter_children`, ``ray`` the
     primitive test's set-up, ``child_entry`` this thread's row of children's entry distances.
     Returns the walk's ``(best_t, best_prim, best_u, best_v)`` and its counters ``(nodes, leaves,
     tests, skips)``; a leaf counts as a node too."""
@@ -207,11 +207,11 @@ def walk_tree(mode, action, row, records, links, prim_order, kind, geom, mailbox
     link = root
     count = 0
     sp = 0
+    enter_from, exit_by = slab_limits(slab, span_lo, min(best_t, span_hi))
     while True:
         n_nodes += 1
         if count == 0:
-            entered = enter_children(records, link, near_x, near_y, near_z, origin, inv_dir, span_lo,
-                                     min(best_t, span_hi), child_entry)
+            entered = enter_children(records, link, near_x, near_y, near_z, slab, enter_from, exit_by, child_entry)
             if entered != 0:
                 link, count, sp = descend(records, links, geom, link, entered, child_entry, stack_link, stack_count,
                                           stack_t, tid, sp, nearest_first, False)
@@ -229,6 +229,7 @@ def walk_tree(mode, action, row, records, links, prim_order, kind, geom, mailbox
                     t_min, best_t, best_prim, best_u, best_v, n_tests, n_skips, any_hit)
             if any_hit and best_prim >= 0:
                 break
+            enter_from, exit_by = slab_limits(slab, span_lo, min(best_t, span_hi))
         while sp > 0 and stack_t[stack_row, unsigned(sp - 1)] > best_t:
             sp -= 1
         if sp == 0:
@@ -252,6 +253,7 @@ def _walk(ray_first, ray_end, tid, root_box, records, links, prim_order, kind, g
     :func:`rayaccel._validate.unusable_ray` refuses is left unwalked, answered as a miss;
     returns how many there were."""
     child_entry = entry[tid]
+    reach_x, reach_y, reach_z = box_reach(root_box, 0)
     unusable = 0
     for i in range(ray_first, ray_end):
         row = result_row(hit_slot, i)
@@ -262,8 +264,6 @@ def _walk(ray_first, ray_end, tid, root_box, records, links, prim_order, kind, g
             finish_ray_in_mode(mode, action, row, ray_t_max, -1, 0.0, 0.0)
             continue
         ix, iy, iz = 1.0 / dx, 1.0 / dy, 1.0 / dz
-        origin = (ox, oy, oz)
-        inv_dir = (ix, iy, iz)
         near_x = 0 if ix >= 0.0 else 3
         near_y = 1 if iy >= 0.0 else 4
         near_z = 2 if iz >= 0.0 else 5
@@ -275,9 +275,10 @@ def _walk(ray_first, ray_end, tid, root_box, records, links, prim_order, kind, g
             finish_ray_in_mode(mode, action, row, best_t, best_prim, best_u, best_v)
             continue
         ray = ray_setup(ox, oy, oz, dx, dy, dz)
+        slab = slab_ray(ox, oy, oz, dx, dy, dz, ix, iy, iz, reach_x, reach_y, reach_z)
         best_t, best_prim, best_u, best_v, n_nodes, n_leaves, n_tests, _ = walk_tree(
-            mode, action, row, records, links, prim_order, kind, geom, None, tid, 0, 0, origin, inv_dir, near_x,
-            near_y, near_z, ray, ray_t_min, ray_t_min, np.inf, best_t, best_prim, best_u, best_v, any_hit, stack_link,
+            mode, action, row, records, links, prim_order, kind, geom, None, tid, 0, 0, slab, near_x, near_y,
+            near_z, ray, ray_t_min, ray_t_min, np.inf, best_t, best_prim, best_u, best_v, any_hit, stack_link,
             stack_count, stack_t, child_entry)
         finish_walked_ray(mode, action, work, row, best_t, best_prim, best_u, best_v, n_nodes, n_tests, n_leaves)
     return unusable

@@ -26,6 +26,7 @@ from ...rays import ray_at, ray_limit, result_row
 from ..actions import NEAREST, finish_ray_in_mode, intersect_references
 from ..base import EXIT_MARGIN
 from ..bvh.traverse_wide import walk_tree
+from ..bvh.wide_slab import slab_ray
 from ..grid.traverse import axis_start, dda_step
 
 __all__ = ["grid_bvh_nearest_kernel", "grid_bvh_crossings_kernel"]
@@ -43,6 +44,8 @@ def _walk(ray_first, ray_end, tid, lo, hi, res, cell_size, cell_first, cell_prim
     there were."""
     nx, ny, nz = res[0], res[1], res[2]
     child_entry = entry[tid]
+    reach_x, reach_y, reach_z = (max(abs(lo[0]), abs(hi[0])), max(abs(lo[1]), abs(hi[1])),
+                                 max(abs(lo[2]), abs(hi[2])))
     unusable = 0
     count_work = work.shape[0] > 0
     for i in range(ray_first, ray_end):
@@ -60,8 +63,7 @@ def _walk(ray_first, ray_end, tid, lo, hi, res, cell_size, cell_first, cell_prim
         ray = ray_setup(ox, oy, oz, dx, dy, dz)
         ix, iy, iz = 1.0 / dx, 1.0 / dy, 1.0 / dz
         near_x, near_y, near_z = 0 if ix >= 0.0 else 3, 1 if iy >= 0.0 else 4, 2 if iz >= 0.0 else 5
-        origin = (ox, oy, oz)
-        inv_dir = (ix, iy, iz)
+        slab = slab_ray(ox, oy, oz, dx, dy, dz, ix, iy, iz, reach_x, reach_y, reach_z)
         cx, step_x, next_x, delta_x = axis_start(ox, dx, t_enter, lo[0], cell_size[0], nx)
         cy, step_y, next_y, delta_y = axis_start(oy, dy, t_enter, lo[1], cell_size[1], ny)
         cz, step_z, next_z, delta_z = axis_start(oz, dz, t_enter, lo[2], cell_size[2], nz)
@@ -88,9 +90,9 @@ def _walk(ray_first, ray_end, tid, lo, hi, res, cell_size, cell_first, cell_prim
                     kind, geom, True, ray, ray_t_min, best_t, best_prim, best_u, best_v, n_tests, n_skips, any_hit)
             else:
                 best_t, best_prim, best_u, best_v, nodes, leaves, n_tests_cell, n_skips_cell = walk_tree(
-                    mode, action, row, records, links, cell_prims, kind, geom, mailbox, tid, stamp, root, origin,
-                    inv_dir, near_x, near_y, near_z, ray, ray_t_min, span_lo, span_hi, best_t, best_prim, best_u,
-                    best_v, any_hit, stack_link, stack_count, stack_t, child_entry)
+                    mode, action, row, records, links, cell_prims, kind, geom, mailbox, tid, stamp, root, slab, near_x,
+                    near_y, near_z, ray, ray_t_min, span_lo, span_hi, best_t, best_prim, best_u, best_v, any_hit,
+                    stack_link, stack_count, stack_t, child_entry)
                 n_steps += nodes
                 n_leaves += leaves
                 n_tests += n_tests_cell
