@@ -57,7 +57,6 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
-from numba import types
 from numba.extending import overload
 
 from .._jit import inline_kernel
@@ -65,8 +64,8 @@ from ..geometry.primitive import cross_prim, intersect_prim
 from ..rays import result_row
 
 __all__ = ["NEAREST", "COUNT", "LIST", "WINDING", "Action", "nearest_hit", "hit_flags", "hit_count", "hit_list",
-           "hit_slots", "signed_crossings", "is_closer", "store_hit", "visit_prim", "visit_prim_in_mode", "prim_at",
-           "finish_ray", "finish_ray_in_mode", "finish_walked_ray", "intersect_references"]
+           "hit_slots", "signed_crossings", "is_closer", "store_hit", "visit_prim", "visit_prim_in_mode", "finish_ray",
+           "finish_ray_in_mode", "finish_walked_ray", "intersect_references"]
 
 NEAREST = 0
 COUNT = 1
@@ -215,8 +214,7 @@ def _insert(action, row, t, prim, u, v):
 def visit_prim(action, row, kind, geom, k, prims, entry, ray, t_min, best_t, best_prim, best_u, best_v, any_hit):
     """Test the primitive in row ``k`` of ``geom`` for the ray of output row ``row`` and apply the
     action; returns ``(best_t, best_prim, best_u, best_v, stop)``, ``stop`` when the walk can end
-    at once (an any-hit query that found one). The primitive's index is ``prims[entry]``
-    (:func:`prim_at`)."""
+    at once (an any-hit query that found one). The primitive's index is ``prims[entry]``."""
     return visit_prim_in_mode(action.mode, action, row, kind, geom, k, prims, entry, ray, t_min, best_t, best_prim,
                               best_u, best_v, any_hit)
 
@@ -233,29 +231,20 @@ def visit_prim_in_mode(mode, action, row, kind, geom, k, prims, entry, ray, t_mi
     2**18 incoherent rays, speed after over before: full dragon 1.03 closest / 1.04 any hit,
     dragon-203k 1.02 / 1.05, forest-small-chair 1.01 / 1.01). Reading it lazily in the crossing
     modes too (inside :func:`_cross_prim_in_mode`) lost the lists' writes (Numba 0.68: an
-    overload inlined within an overload inlined at typing)."""
+    overload inlined within an overload inlined at typing). Brute force passes ``arange(n)``:
+    choosing ``entry`` itself by an overload on ``prims`` being ``None`` made a test worker's
+    compilation of the interleaved walk grow to 10-23 GB (Numba's inliner, after the
+    worker's earlier compilations)."""
     if mode == NEAREST:
         t, u, v = intersect_prim(kind, geom, k, ray, t_min, best_t)
         if t == np.inf:
             return best_t, best_prim, best_u, best_v, False
-        prim = prim_at(prims, entry)
+        prim = prims[entry]
         if is_closer(t, prim, best_t, best_prim):
             return t, prim, u, v, any_hit
         return best_t, best_prim, best_u, best_v, False
-    return _cross_prim_in_mode(mode, action, row, kind, geom, k, prim_at(prims, entry), ray, t_min, best_t,
-                               best_prim, best_u, best_v)
-
-
-def prim_at(prims, entry):
-    """The primitive index ``prims[entry]``, or ``entry`` itself where ``prims`` is ``None`` (a walk
-    over every primitive in the scene's order), chosen by the type of ``prims`` (inside kernels)."""
-
-
-@overload(prim_at, inline="always")
-def _prim_at(prims, entry):
-    if isinstance(prims, types.NoneType):
-        return lambda prims, entry: entry
-    return lambda prims, entry: prims[entry]
+    return _cross_prim_in_mode(mode, action, row, kind, geom, k, prims[entry], ray, t_min, best_t, best_prim,
+                               best_u, best_v)
 
 
 def _cross_prim_in_mode(mode, action, row, kind, geom, k, prim, ray, t_min, best_t, best_prim, best_u, best_v):

@@ -17,9 +17,10 @@ __all__ = ["BruteForce", "brute_force_kernel", "brute_force_nearest_kernel", "br
 
 
 @chunk_kernel
-def brute_force_kernel(ray_first, ray_end, tid, kind, geom, origins, directions, t_min, t_max, hit_slot, any_hit,
-                       action, work):
-    """Every ray against every primitive, the leaf action (:mod:`.actions`) applied to each."""
+def brute_force_kernel(ray_first, ray_end, tid, kind, geom, all_prims, origins, directions, t_min, t_max, hit_slot,
+                       any_hit, action, work):
+    """Every ray against every primitive, the leaf action (:mod:`.actions`) applied to each;
+    ``all_prims`` is ``arange(n)``, each primitive's index."""
     n_prims = geom.shape[0]
     for i in range(ray_first, ray_end):
         row = result_row(hit_slot, i)
@@ -33,7 +34,7 @@ def brute_force_kernel(ray_first, ray_end, tid, kind, geom, origins, directions,
         tests = 0
         for prim in range(n_prims):
             tests += 1
-            best_t, best_prim, best_u, best_v, stop = visit_prim(action, row, kind, geom, prim, None, prim, ray,
+            best_t, best_prim, best_u, best_v, stop = visit_prim(action, row, kind, geom, prim, all_prims, prim, ray,
                                                                  ray_t_min, best_t, best_prim, best_u, best_v, any_hit)
             if stop:
                 break
@@ -74,8 +75,8 @@ class BruteForce(Accelerator):
         super().__init__(scene, {})
 
     def _trace(self, batch, any_hit, action, work):
-        walk_rays(brute_force_kernel, len(batch.origins), self.scene.kind, self.scene.geometry, *batch, any_hit, action,
-                  work)
+        walk_rays(brute_force_kernel, len(batch.origins), self.scene.kind, self.scene.geometry,
+                  np.arange(len(self.scene)), *batch, any_hit, action, work)
 
     def _nearest(self, points, limit_d2, out_d2, out_prim):
         """Point queries test every primitive, too; the winding number is the exact sum."""
