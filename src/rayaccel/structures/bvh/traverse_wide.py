@@ -28,9 +28,11 @@ Whatever is pushed is prefetched, so its memory arrives while the ray works on
 nearer children (measured on the dragon's incoherent rays: +20-25 % against the
 binary walk, where a four-wide layout alone gave +5-14 %). An entry popped beyond
 the best hit found since it was pushed is skipped. A ray that misses the whole
-tree's box stops there, before testing any child box. The slab test computes
-exactly what :func:`.traverse.enter_box` computes, with the same NaN-safe
-comparisons.
+tree's box stops there, before testing any child box (in float64, exactly as
+:func:`.traverse.enter_box`). The child boxes' test runs in float32 lanes and is
+conservative (:mod:`.wide_slab`): it enters every child the exact test enters, at
+an entry distance no greater, so that the walk's answers are the exact primitive
+tests'.
 """
 
 from __future__ import annotations
