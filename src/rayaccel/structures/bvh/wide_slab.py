@@ -44,11 +44,12 @@ Measured against the float64 lanes (in-process A/B, one thread, 2**18 rays,
 speed after over before, closest / any hit, two runs): forest-small-chair
 incoherent 1.06-1.09 / 1.03-1.08, shadow 1.09-1.10 / 1.09-1.12; dragon-203k
 incoherent 1.01-1.06 / 1.02-1.04, shadow 1.03-1.04 / 1.05-1.09; the full
-dragon's incoherent rays, whose walk waits on memory, 0.99 / 1.00. A first version that read ``t_min`` and ``t_max`` as float64 at
-every node and scaled each entry distance back there (two more vector
-operations a node) and called ``math.frexp`` per ray gained nothing on the
-forest (0.95 / 0.92); an earlier float32 test of four-wide nodes, on the full
-dragon only, gained nothing either (x0.98 to x1.03).
+dragon's incoherent rays, whose walk waits on memory, 0.99 / 1.00. A first
+version that read ``t_min`` and ``t_max`` as float64 at every node and scaled
+each entry distance back there (two more vector operations a node) and called
+``math.frexp`` per ray gained nothing on the forest (0.95 / 0.92); an earlier
+float32 test of four-wide nodes, on the full dragon only, gained nothing
+either (x0.98 to x1.03).
 """
 
 from __future__ import annotations
