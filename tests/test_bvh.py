@@ -298,7 +298,7 @@ def _vector_and_scalar_child_tests():
     def both(records, boxes, bound, node, o, d, t_min, t_max):
         inv = (1.0 / d[0], 1.0 / d[1], 1.0 / d[2])
         near = (0 if inv[0] >= 0.0 else 3, 1 if inv[1] >= 0.0 else 4, 2 if inv[2] >= 0.0 else 5)
-        reach = box_reach(bound, 0)
+        reach = box_reach(bound[0, :3], bound[0, 3:])
         slab = slab_ray(o[0], o[1], o[2], d[0], d[1], d[2], inv[0], inv[1], inv[2], reach[0], reach[1], reach[2])
         enter_from, exit_by = slab_limits(slab, t_min, t_max)
         vector = np.empty(WIDTH)
@@ -350,7 +350,7 @@ def test_vector_child_test_enters_what_the_exact_test_enters(seed, zero_axes, on
         if on_plane:
             origin[axis] = lo[rng.integers(WIDTH), axis]
     if not direction.any():
-        direction[0] = length
+        direction[0] = length * scale
     t_min, t_max = t_min / length, t_max / length
     vector, scalar, mask = both(records, boxes, bound, 0, origin, direction, t_min, t_max)
     scalar = np.array(scalar)
@@ -366,15 +366,16 @@ def test_vector_child_test_enters_what_the_exact_test_enters(seed, zero_axes, on
 
 def test_vector_child_test_enters_every_box_for_rays_beyond_float32_distances():
     """A ray whose distances float32 cannot bound (a direction component below ``2**-100`` of the
-    largest but not zero, coordinates beyond ``2**100``) enters every child in use, and no empty
-    slot."""
+    largest but not zero, coordinates beyond ``2**100``, a subnormal direction) enters every child
+    in use, and no empty slot."""
     both = _vector_and_scalar_child_tests()
     rng = np.random.default_rng(3)
     lo = rng.uniform(-1, 1, (WIDTH, 3)).astype(np.float32)
     hi = lo + rng.uniform(0, 1, (WIDTH, 3)).astype(np.float32)
     used = np.arange(WIDTH) < 6
     records, boxes, bound = _wide_node(lo, hi, used)
-    for origin, direction in (((5.0, 0.5, 0.5), (-1.0, 1e-35, 0.0)), ((2.0 ** 110, 0.5, 0.5), (-1.0, 0.0, 0.0))):
+    for origin, direction in (((5.0, 0.5, 0.5), (-1.0, 1e-35, 0.0)), ((2.0 ** 110, 0.5, 0.5), (-1.0, 0.0, 0.0)),
+                              ((5.0, 0.5, 0.5), (-1e-309, 0.0, 0.0))):
         vector, scalar, mask = both(records, boxes, bound, 0, np.array(origin), np.array(direction), 0.0, np.inf)
         exact = np.array(scalar) != np.inf
         assert mask == (1 << 6) - 1

@@ -7,14 +7,15 @@ Hierarchies", ACM TOG 26(1), 2007: a box culled for a whole packet by interval
 arithmetic over its rays):
 
 * :func:`enter_children_interval`: the packet as a whole against the node's eight child
-  boxes at once, as :func:`.wide_slab.enter_children` tests one ray: each slab distance
+  boxes at once, in float64: each slab distance
   computed from the packet's extreme origin and the inverse direction at either end of
   its range, whichever gives the nearer entry (farther exit). Rounding is monotone, so no
   ray of the packet enters a box earlier or leaves it later than this bound says: a box
   it culls, every one of its rays would cull on its own. It asks that the packet's rays
   point to the same side along each axis (their inverse directions of one sign).
 * :func:`enter_child_lanes`: one child box against each ray of the packet, one vector
-  lane a ray, computing what the single-ray test computes for that ray, in float64; the
+  lane a ray, computing what the exact test (:func:`.traverse.enter_box`) computes for that
+  ray, in float64; the
   packet walk asks it of the leaves the packet enters, so that a ray tests only the
   primitives of leaves it enters itself.
 * :func:`enter_children_by_lane`: each ray of the packet against the eight child boxes,
@@ -142,9 +143,9 @@ def enter_child_lanes(typingctx, records, node, child, state, lanes):
 @intrinsic
 def enter_children_by_lane(typingctx, records, node, state, lanes, entry):
     """Each ray of the packet in ``lanes`` (bit ``r`` for lane ``r``) against the eight child
-    boxes of wide ``node``, as :func:`.wide_slab.enter_children` tests one ray, in float64:
-    returns the children each ray enters before its best hit, byte ``r`` of the result for
-    lane ``r`` (bit ``c`` for child ``c``; 0 for a lane not in ``lanes``), and writes into
+    boxes of wide ``node``, as the exact test (:func:`.traverse.enter_box`) tests one ray, in
+    float64: returns the children each ray enters before its best hit, byte ``r`` of the result
+    for lane ``r`` (bit ``c`` for child ``c``; 0 for a lane not in ``lanes``), and writes into
     ``entry[c]`` the nearest entry into child ``c`` of those rays (``inf`` where none enters).
     ``state`` holds the packet's :data:`PACKET_ROWS` rows of :data:`PACKET` float64. The rays
     may point to either side along any axis; their tests are independent of each other, so

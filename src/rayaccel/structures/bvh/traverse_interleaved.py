@@ -161,7 +161,7 @@ def _walk(ray_first, ray_end, tid, root_box, records, links, prim_order, kind, g
     child_entry = entry[tid]
     ints = slot_ints[tid]
     floats = slot_floats[tid]
-    reach = box_reach(root_box, 0)
+    reach = box_reach(root_box[0, :3], root_box[0, 3:6])
     next_ray = ray_first
     for slot in range(slots):
         ints[slot, _RAY] = -1

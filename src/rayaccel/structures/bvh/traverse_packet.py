@@ -51,9 +51,10 @@ medians of 9 in alternating processes: any hit 11.6 -> 9.6 ms, closest hit 22.3 
 Rays that start apart but head alike, such as shadow rays from neighbouring hits to one
 light, would make the packet's interval bounds loose (measured on the full dragon's: 0.3
 of the single walk's speed). Their packets test each ray against the eight child boxes
-instead (:func:`.packet_slab.enter_children_by_lane`: the single walk's test for each lane,
-so exactly the boxes each ray enters), and push each entered child with the lanes that
-enter it (the rays' child masks transposed, Warren's "Hacker's Delight", section 7-3).
+instead (:func:`.packet_slab.enter_children_by_lane`: the exact float64 test,
+:func:`.traverse.enter_box`, for each lane, so exactly the boxes each ray enters), and
+push each entered child with the lanes that enter it (the rays' child masks transposed,
+Warren's "Hacker's Delight", section 7-3).
 Eight rays' tests are independent of each other, so the processor overlaps them, where
 the single walk waits for each test before the next fetch; the packet still fetches each
 node once. Shadow rays from 1024^2 camera hits, packets against the single walk, closest / any

@@ -255,7 +255,7 @@ def _walk(ray_first, ray_end, tid, root_box, records, links, prim_order, kind, g
     :func:`rayaccel._validate.unusable_ray` refuses is left unwalked, answered as a miss;
     returns how many there were."""
     child_entry = entry[tid]
-    reach_x, reach_y, reach_z = box_reach(root_box, 0)
+    reach_x, reach_y, reach_z = box_reach(root_box[0, :3], root_box[0, 3:6])
     unusable = 0
     for i in range(ray_first, ray_end):
         row = result_row(hit_slot, i)

@@ -26,7 +26,7 @@ from ...rays import ray_at, ray_limit, result_row
 from ..actions import NEAREST, finish_ray_in_mode, intersect_references
 from ..base import EXIT_MARGIN
 from ..bvh.traverse_wide import walk_tree
-from ..bvh.wide_slab import slab_ray
+from ..bvh.wide_slab import box_reach, slab_ray
 from ..grid.traverse import axis_start, dda_step
 
 __all__ = ["grid_bvh_nearest_kernel", "grid_bvh_crossings_kernel"]
@@ -44,8 +44,7 @@ def _walk(ray_first, ray_end, tid, lo, hi, res, cell_size, cell_first, cell_prim
     there were."""
     nx, ny, nz = res[0], res[1], res[2]
     child_entry = entry[tid]
-    reach_x, reach_y, reach_z = (max(abs(lo[0]), abs(hi[0])), max(abs(lo[1]), abs(hi[1])),
-                                 max(abs(lo[2]), abs(hi[2])))
+    reach_x, reach_y, reach_z = box_reach(lo, hi)
     unusable = 0
     count_work = work.shape[0] > 0
     for i in range(ray_first, ray_end):
