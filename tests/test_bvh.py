@@ -316,7 +316,6 @@ def _wide_node(lo, hi, used):
     the box around them all."""
     lo, hi = lo.copy(), hi.copy()
     lo[~used], hi[~used] = np.inf, -np.inf
-
     records = cache_line_aligned((1, 8 * WIDTH), np.float32)
     records[0, :3 * WIDTH] = lo.T.ravel()
     records[0, 3 * WIDTH:6 * WIDTH] = hi.T.ravel()

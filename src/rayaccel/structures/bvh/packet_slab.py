@@ -7,22 +7,21 @@ Hierarchies", ACM TOG 26(1), 2007: a box culled for a whole packet by interval
 arithmetic over its rays):
 
 * :func:`enter_children_interval`: the packet as a whole against the node's eight child
-  boxes at once, in float64: each slab distance
-  computed from the packet's extreme origin and the inverse direction at either end of
-  its range, whichever gives the nearer entry (farther exit). Rounding is monotone, so no
-  ray of the packet enters a box earlier or leaves it later than this bound says: a box
-  it culls, every one of its rays would cull on its own. It asks that the packet's rays
-  point to the same side along each axis (their inverse directions of one sign).
+  boxes at once, in float64: each slab distance computed from the packet's extreme origin
+  and the inverse direction at either end of its range, whichever gives the nearer entry
+  (farther exit). Rounding is monotone, so no ray of the packet enters a box earlier or
+  leaves it later than this bound says: a box it culls, every one of its rays would cull
+  on its own. It asks that the packet's rays point to the same side along each axis (their
+  inverse directions of one sign).
 * :func:`enter_child_lanes`: one child box against each ray of the packet, one vector
   lane a ray, computing what the exact test (:func:`.traverse.enter_box`) computes for that
-  ray, in float64; the
-  packet walk asks it of the leaves the packet enters, so that a ray tests only the
-  primitives of leaves it enters itself.
+  ray, in float64; the packet walk asks it of the leaves the packet enters, so that a ray
+  tests only the primitives of leaves it enters itself.
 * :func:`enter_children_by_lane`: each ray of the packet against the eight child boxes,
-  the single-ray test lane after lane, for packets whose rays start apart (shadow rays),
+  the exact test lane after lane, for packets whose rays start apart (shadow rays),
   where the interval bounds would cull little.
 
-All keep the single-ray test's NaN-safe bounds (an origin on a slab plane with a zero
+All keep the exact test's NaN-safe bounds (an origin on a slab plane with a zero
 direction component gives ``0 * inf``, which never tightens the interval).
 :func:`load_packet` moves eight rays from the caller's rows into the packet's lanes;
 :func:`bound_span` bounds a longer run of rays for :func:`enter_children_interval`.

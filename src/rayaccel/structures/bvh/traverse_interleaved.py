@@ -107,9 +107,10 @@ def _take_ray(slot, next_ray, ray_end, ints, floats, root_box, reach, origins, d
         ints[slot, _NODES] = 0
         ints[slot, _TESTS] = 0
         ints[slot, _LEAVES] = 0
-        _keep_slab(slab_ray(ox, oy, oz, dx, dy, dz, ix, iy, iz, reach[0], reach[1], reach[2]), floats, slot)
+        slab = slab_ray(ox, oy, oz, dx, dy, dz, ix, iy, iz, reach[0], reach[1], reach[2])
+        _keep_slab(slab, floats, slot)
         floats[slot, _BEST_T] = ray_t_max
-        _keep_limits(floats, slot, ray_limit(t_min, i), ray_t_max)
+        _keep_limits(floats, slot, slab, ray_limit(t_min, i), ray_t_max)
         floats[slot, _BEST_U] = 0.0
         floats[slot, _BEST_V] = 0.0
         break
@@ -126,10 +127,10 @@ def _keep_slab(slab, floats, slot):
 
 
 @inline_kernel
-def _keep_limits(floats, slot, t_min, t_max):
-    """Keep the :func:`.wide_slab.slab_limits` of ``[t_min, t_max]`` in row ``slot``, for the
-    steps up to the ray's next leaf."""
-    floats[slot, _ENTER_FROM], floats[slot, _EXIT_BY] = slab_limits(_load_slab(floats, slot), t_min, t_max)
+def _keep_limits(floats, slot, slab, t_min, t_max):
+    """Keep the :func:`.wide_slab.slab_limits` of ``[t_min, t_max]`` for the ray of ``slab`` in
+    row ``slot``, for the steps up to the ray's next leaf."""
+    floats[slot, _ENTER_FROM], floats[slot, _EXIT_BY] = slab_limits(slab, t_min, t_max)
 
 
 @inline_kernel
@@ -204,7 +205,7 @@ def _walk(ray_first, ray_end, tid, root_box, records, links, prim_order, kind, g
                                                                       floats[slot, _BEST_V], any_hit)
                 ints[slot, _TESTS] += tests
                 floats[slot, _BEST_T] = best_t
-                _keep_limits(floats, slot, ray_t_min, best_t)
+                _keep_limits(floats, slot, _load_slab(floats, slot), ray_t_min, best_t)
                 ints[slot, _PRIM] = best_prim
                 floats[slot, _BEST_U] = best_u
                 floats[slot, _BEST_V] = best_v

@@ -45,13 +45,13 @@ infinite move, which enters every child in use (at entry distances that may
 be infinite), and is answered exactly by its primitive tests. An empty slot
 (``lo = +inf``, ``hi = -inf``) is never entered: its faces sum to NaN.
 Measured against the float64 lanes (in-process A/B, one thread, 2**18 rays,
-speed after over before, closest / any hit, two runs): forest-small-chair
-incoherent 1.06-1.09 / 1.03-1.08, shadow 1.09-1.10 / 1.09-1.12; dragon-203k
+speed after over before, closest / any hit, two to four runs): forest-small-chair
+incoherent 1.02-1.09 / 1.02-1.08, shadow 1.08-1.10 / 1.08-1.12; dragon-203k
 incoherent 1.01-1.06 / 1.02-1.04, shadow 1.03-1.04 / 1.05-1.09; the full
 dragon's incoherent rays, whose walk waits on memory, 0.99 / 1.00. A first
 version that read ``t_min`` and ``t_max`` as float64 at every node and scaled
 each entry distance back there (two more vector operations a node) and called
-``math.frexp`` per ray gained nothing on the forest (0.95 / 0.92); an earlier
+``math.frexp`` per ray was slower on the forest (0.92-0.95 / 0.90-0.92); an earlier
 float32 test of four-wide nodes, on the full dragon only, gained nothing
 either (x0.98 to x1.03).
 """
@@ -91,7 +91,8 @@ def slab_ray(typingctx, ox, oy, oz, dx, dy, dz, ix, iy, iz, reach_x, reach_y, re
     moved for the near faces, moved for the far faces, and the reciprocal of the direction
     scaled by a power of two ``s`` to a largest component in ``[1, 2)``; then ``s``, which turns
     distances along the scaled direction back into the ray's, and ``1 / s``. Emitted as IR: the
-    same arithmetic written in Python took 0.7 s more of the walk's first compile."""
+    same arithmetic written as Numba code made the first ``intersect`` on an empty cache compile
+    for 6.26-6.45 s of CPU instead of 5.38 (bunny, ``benchmarks/bench_compile.py``)."""
     float32, float64 = types.float32, types.float64
     signature = types.Tuple((float32,) * 9 + (float64, float64))(*(float64,) * 12)
 
@@ -200,10 +201,8 @@ def enter_children(typingctx, records, node, near_x, near_y, near_z, slab, enter
             if axis == 0:
                 faces = builder.fadd(near_face, far_face)
                 used = builder.fcmp_ordered("ord", faces, faces)
-            inv = constant(6 + axis)
-            near = builder.fmul(builder.fsub(near_face, constant(axis)), inv)
-            far = builder.fmul(builder.fsub(far_face, constant(3 + axis)), inv)
-            enter, exit_ = tighten_lanes(builder, near, far, enter, exit_)
+            enter, exit_ = tighten_to_slab(builder, near_face, far_face, constant(axis), constant(6 + axis), enter,
+                                           exit_, far_origin=constant(3 + axis))
         return entered_children(context, builder, sig.args[8], entry_array, enter, exit_, used,
                                 builder.fmul(builder.fpext(enter, doubles), splat(builder, scale, doubles)))
 
@@ -226,11 +225,13 @@ def tighten_lanes(builder, near, far, enter, exit_):
     return enter, exit_
 
 
-def tighten_to_slab(builder, near_face, far_face, origin, inverse, enter, exit_):
+def tighten_to_slab(builder, near_face, far_face, origin, inverse, enter, exit_, far_origin=None):
     """The IR of one slab of the slab test on vectors: the distances ``(face - origin) * inverse``
-    to the near and far faces, each lane's interval narrowed to them (:func:`tighten_lanes`)."""
+    to the near and far faces, each lane's interval narrowed to them (:func:`tighten_lanes`);
+    ``far_origin``, when given, is the origin the far faces are measured from (:func:`slab_ray`
+    moves it apart from the near faces' one)."""
     near = builder.fmul(builder.fsub(near_face, origin), inverse)
-    far = builder.fmul(builder.fsub(far_face, origin), inverse)
+    far = builder.fmul(builder.fsub(far_face, origin if far_origin is None else far_origin), inverse)
     return tighten_lanes(builder, near, far, enter, exit_)
 
 
