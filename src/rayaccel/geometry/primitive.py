@@ -8,7 +8,7 @@ from .._jit import inline_kernel
 from .gather import sphere_rows
 from .kinds import TRIANGLE
 from .sphere import cross_sphere, intersect_sphere
-from .triangle import cross_triangle, intersect_triangle, shear_setup
+from .triangle import axis_value, cross_triangle, intersect_triangle, shear_setup
 
 __all__ = ["ray_setup", "RAY_FLOATS", "RAY_INTS", "store_ray", "load_ray", "intersect_prim", "cross_prim"]
 
@@ -23,8 +23,8 @@ def ray_setup(ox, oy, oz, dx, dy, dz):
     """The per-ray constants :func:`intersect_prim` takes, computed once per ray: the ray, the
     axes and shear of :func:`.triangle.shear_setup`, and the origin's coordinates on those axes."""
     kx, ky, kz, sx, sy, sz = shear_setup(dx, dy, dz)
-    origin = (ox, oy, oz)
-    return (ox, oy, oz, dx, dy, dz, kx, ky, kz, sx, sy, sz, origin[kx], origin[ky], origin[kz])
+    return (ox, oy, oz, dx, dy, dz, kx, ky, kz, sx, sy, sz, axis_value(kx, ox, oy, oz), axis_value(ky, ox, oy, oz),
+            axis_value(kz, ox, oy, oz))
 
 
 @inline_kernel

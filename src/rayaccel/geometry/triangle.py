@@ -22,7 +22,7 @@ import numpy as np
 from .._jit import inline_kernel
 from .gather import corner
 
-__all__ = ["shear_setup", "intersect_triangle", "cross_triangle", "DEGENERATE"]
+__all__ = ["axis_value", "shear_setup", "intersect_triangle", "cross_triangle", "DEGENERATE"]
 
 DEGENERATE = 1e-13
 """Relative size of ``det`` (to the sum of its six products' magnitudes) at or below which a
@@ -30,23 +30,26 @@ triangle counts as degenerate."""
 
 
 @inline_kernel
+def axis_value(k, x, y, z):
+    """``(x, y, z)[k]`` for an axis ``k`` known only at run time, as selects: indexing the tuple
+    by ``k`` compiles to a jump table whose branches spill the ray's values to the stack."""
+    return x if k == 0 else (y if k == 1 else z)
+
+
+@inline_kernel
 def shear_setup(dx, dy, dz):
     """Per-ray constants ``(kx, ky, kz, sx, sy, sz)``: the dominant axis ``kz`` of the
     direction, the two others ordered to keep the winding, and the shear."""
     ax, ay, az = abs(dx), abs(dy), abs(dz)
-    if ax >= ay and ax >= az:
-        kz = 0
-    elif ay >= az:
-        kz = 1
-    else:
-        kz = 2
+    x_largest = (ax >= ay) & (ax >= az)
+    kz = 0 if x_largest else (1 if ay >= az else 2)
     kx = kz + 1 if kz < 2 else 0
     ky = kx + 1 if kx < 2 else 0
-    d = (dx, dy, dz)
-    if d[kz] < 0.0:
-        kx, ky = ky, kx
-    sz = 1.0 / d[kz]
-    return kx, ky, kz, d[kx] * sz, d[ky] * sz, sz
+    d_kz = axis_value(kz, dx, dy, dz)
+    flip = d_kz < 0.0
+    kx, ky = (ky if flip else kx), (kx if flip else ky)
+    sz = 1.0 / d_kz
+    return kx, ky, kz, axis_value(kx, dx, dy, dz) * sz, axis_value(ky, dx, dy, dz) * sz, sz
 
 
 @inline_kernel

@@ -314,9 +314,9 @@ def finish_ray_in_mode(mode, action, row, best_t, best_prim, best_u, best_v):
 @inline_kernel
 def finish_walked_ray(mode, action, work, row, best_t, best_prim, best_u, best_v, n_nodes, n_tests, n_leaves):
     """:func:`finish_ray_in_mode`, then the ray's work counters (nodes, tests, leaves) when the walk
-    counts (``work`` not empty), for a walk that keeps them apart from its answer."""
+    counts (``work`` not None), for a walk that keeps them apart from its answer."""
     finish_ray_in_mode(mode, action, row, best_t, best_prim, best_u, best_v)
-    if work.shape[0] > 0:
+    if work is not None:
         work[row, 0] = n_nodes
         work[row, 1] = n_tests
         work[row, 3] = n_leaves

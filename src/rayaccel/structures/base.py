@@ -156,7 +156,7 @@ class Accelerator(PointQueries):
         each ray's answer itself (:func:`.actions.hit_flags`)."""
         rays = self._prepare_rays(origins, directions, t_min, t_max)
         hit = np.empty(len(rays.origins), dtype=np.bool_)
-        self._walk_prepared(rays, reorder, True, hit_flags(hit), np.zeros((0, WORK_COLUMNS), dtype=np.int64))
+        self._walk_prepared(rays, reorder, True, hit_flags(hit), None)
         return hit
 
     def count(self, origins, directions, t_min=0.0, t_max=np.inf, *, reorder=True) -> np.ndarray:
@@ -241,7 +241,7 @@ class Accelerator(PointQueries):
         if scratch is None or len(scratch[0]) < n * size:
             scratch = hit_arrays(n * size)
         t, prim, u, v = (array[:n * size] for array in scratch)
-        self._trace(batch, False, hit_slots(size, counts, t, prim, u, v), np.zeros((0, 3), dtype=np.int64))
+        self._trace(batch, False, hit_slots(size, counts, t, prim, u, v), None)
         full = counts == size if max_hits is None or max_hits > size else np.zeros(n, dtype=bool)
         t, prim, u, v = kept_hits(np.where(full, 0, counts), t, prim, u, v)
         if not full.any():
@@ -266,13 +266,13 @@ class Accelerator(PointQueries):
         fill = np.zeros(len(offsets) - 1, dtype=np.int64)
         t, prim, u, v = hit_arrays(m)
         if m:
-            self._trace(batch, False, hit_list(offsets, fill, t, prim, u, v), np.zeros((0, 3), dtype=np.int64))
+            self._trace(batch, False, hit_list(offsets, fill, t, prim, u, v), None)
         return fill, t, prim, u, v
 
     def _count(self, rays, batch) -> np.ndarray:
         counts = np.zeros(len(rays.origins), dtype=np.int64)
         if len(counts):
-            self._trace(batch, False, hit_count(counts), np.zeros((0, 3), dtype=np.int64))
+            self._trace(batch, False, hit_count(counts), None)
         return counts
 
     def _ordered(self, rays, reorder):
@@ -330,7 +330,7 @@ class Accelerator(PointQueries):
         n = len(rays.origins)
         t, u, v = (np.empty(n) for _ in range(3))
         prim, geom = np.empty(n, dtype=np.int64), np.empty(n, dtype=np.int64)
-        work = np.zeros((n if counters else 0, WORK_COLUMNS), dtype=np.int64)
+        work = np.zeros((n, WORK_COLUMNS), dtype=np.int64) if counters else None
         self._walk_prepared(rays, reorder, any_hit, nearest_hit(t, prim, u, v, geom), work)
         return rays, t, prim, u, v, geom, work
 

@@ -39,7 +39,7 @@ def brute_force_kernel(ray_first, ray_end, tid, kind, geom, all_prims, origins, 
             if stop:
                 break
         finish_ray(action, row, best_t, best_prim, best_u, best_v)
-        if work.shape[0] > 0:
+        if work is not None:
             work[row, 1] = tests
 
 

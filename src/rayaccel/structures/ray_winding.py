@@ -75,7 +75,7 @@ def ray_winding_number(accel, points: np.ndarray, accuracy: float) -> np.ndarray
 
 def _signed_crossings(accel, rays) -> np.ndarray:
     halves = np.zeros(len(rays.origins), dtype=np.int64)
-    accel._trace(accel._ordered(rays, True), False, signed_crossings(halves), np.zeros((0, 3), dtype=np.int64))
+    accel._trace(accel._ordered(rays, True), False, signed_crossings(halves), None)
     return halves
 
 

@@ -280,7 +280,7 @@ class BoundingVolumeHierarchy(Accelerator):
         tree = (self.wide, self.wide.view(np.int32), self.prim_order, self.scene.kind, self.geometry)
         sampled = None
         walk = None
-        if work.shape[0] == 0 and self.options.get("packets", True) and len(batch.origins) >= MIN_PACKET_RAYS:
+        if work is None and self.options.get("packets", True) and len(batch.origins) >= MIN_PACKET_RAYS:
             sampled = sample_neighbours(batch, *self.scene_box)
             if packets_pay(batch, *self.scene_box, sampled):
                 walk = _PACKET_WALKS.get(action.mode, wide_packet_crossings_kernel)

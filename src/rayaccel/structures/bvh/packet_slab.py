@@ -35,7 +35,7 @@ from numba.core import cgutils
 from numba.extending import intrinsic
 
 from ..._ray_lanes import LANES, load_eight, rays_by_axis, rays_readable
-from .wide import WIDTH
+from .wide import WIDTH, record_row
 from .wide_slab import entered_children, splat, tighten_lanes, tighten_to_slab
 
 __all__ = ["PACKET", "PACKET_ROWS", "BOUND_T_MIN", "BOUND_BEST", "BOUND_VALUES", "enter_children_interval",
@@ -55,14 +55,6 @@ far distances, and the two ends of its rays' inverse directions; then, at :data:
 and :data:`BOUND_BEST`, the smallest ``t_min`` and the farthest best distance of its rays."""
 
 
-def _record_row(context, builder, records_type, records, node_type, node):
-    """Pointer to float32 column 0 of wide record ``node`` (records of ``8 * WIDTH`` floats)."""
-    view = context.make_array(records_type)(context, builder, records)
-    intp = context.get_value_type(types.intp)
-    return builder.gep(view.data, [builder.mul(context.cast(builder, node, node_type, types.intp),
-                                               ir.Constant(intp, 8 * WIDTH))])
-
-
 @intrinsic
 def enter_children_interval(typingctx, records, node, bounds, entry):
     """The packet whose ``bounds`` (:data:`BOUND_VALUES`) are given against the child boxes of wide
@@ -75,7 +67,7 @@ def enter_children_interval(typingctx, records, node, bounds, entry):
         intp = context.get_value_type(types.intp)
         floats = ir.VectorType(ir.FloatType(), WIDTH)
         doubles = ir.VectorType(ir.DoubleType(), WIDTH)
-        row = _record_row(context, builder, sig.args[0], array, sig.args[1], node_index)
+        row = record_row(context, builder, sig.args[0], array, node_index, sig.args[1])
         values = context.make_array(sig.args[2])(context, builder, bounds_array).data
 
         def value(k):
@@ -114,7 +106,7 @@ def enter_child_lanes(typingctx, records, node, child, state, lanes):
         array, node_index, child_index, state_array, lane_bits = args
         intp = context.get_value_type(types.intp)
         doubles = ir.VectorType(ir.DoubleType(), PACKET)
-        row = _record_row(context, builder, sig.args[0], array, sig.args[1], node_index)
+        row = record_row(context, builder, sig.args[0], array, node_index, sig.args[1])
         child_value = context.cast(builder, child_index, sig.args[2], types.intp)
         state_data = context.make_array(sig.args[3])(context, builder, state_array).data
         vectors = builder.bitcast(state_data, doubles.as_pointer())
@@ -161,7 +153,7 @@ def enter_children_by_lane(typingctx, records, node, state, lanes, entry):
         int64 = ir.IntType(64)
         floats = ir.VectorType(ir.FloatType(), WIDTH)
         doubles = ir.VectorType(ir.DoubleType(), WIDTH)
-        row = _record_row(context, builder, sig.args[0], array, sig.args[1], node_index)
+        row = record_row(context, builder, sig.args[0], array, node_index, sig.args[1])
         state_data = context.make_array(sig.args[2])(context, builder, state_array).data
         active = context.cast(builder, lane_bits, sig.args[3], types.int64)
         boxes = []

@@ -127,7 +127,7 @@ def _walk(ray_first, ray_end, tid, bounds_kind, node_box, node_volume, node_link
     and ``node_links`` the same memory seen as int32 (columns 6 and 7: first, count). At a
     leaf each primitive gets the leaf action (:mod:`..actions`) in ``mode``.
     """
-    count_work = work.shape[0] > 0
+    count_work = work is not None
     for i in range(ray_first, ray_end):
         row = result_row(hit_slot, i)
         ray_t_min, ray_t_max = ray_limit(t_min, i), ray_limit(t_max, i)

@@ -32,14 +32,20 @@ same way, tree ``k`` rooted at wide node ``k``.
 from __future__ import annotations
 
 import numpy as np
-from numba import prange
+from llvmlite import ir
+from numba import prange, types
+from numba.extending import intrinsic
 
-from ..._jit import inline_kernel, kernel, parallel_kernel, unsigned
+from ..._jit import inline_kernel, kernel, parallel_kernel
 from ..._memory import cache_line_aligned
 
-__all__ = ["WIDTH", "LINK", "COUNT", "child_link", "child_count", "wide_tree", "wide_records", "wide_depth"]
+__all__ = ["WIDTH", "RECORD", "LINK", "COUNT", "child_link", "child_count", "is_record_array", "record_row",
+           "wide_tree", "wide_records",
+           "wide_depth"]
 
 WIDTH = 8
+RECORD = 8 * WIDTH
+"""Numbers (float32 or int32) in a wide record."""
 LINK = 6 * WIDTH
 """Column of child 0's link in a record."""
 COUNT = 7 * WIDTH
@@ -47,17 +53,50 @@ COUNT = 7 * WIDTH
 UNUSED = -1
 
 
+def is_record_array(records_type) -> bool:
+    """Whether Numba's type ``records_type`` is that of a C-contiguous 2-D array, which
+    :func:`record_row` can address (the walks' intrinsics refuse to compile for others)."""
+    return isinstance(records_type, types.Array) and records_type.ndim == 2 and records_type.layout == "C"
+
+
+def record_row(context, builder, records_type, records, node, node_type):
+    """The IR of the address of wide record ``node``'s first number in ``records``, an (n, RECORD)
+    C-contiguous array: its data pointer plus ``node * RECORD``, a shift. Numba's own indexing
+    multiplies the row by the array's stride, read at run time, which put a multiplication (and
+    the stride's reload from the stack) on the path from one node to the next."""
+    view = context.make_array(records_type)(context, builder, records)
+    intp = context.get_value_type(types.intp)
+    index = builder.mul(context.cast(builder, node, node_type, types.intp), ir.Constant(intp, RECORD))
+    return builder.gep(view.data, [index], inbounds=True)
+
+
+@intrinsic
+def _record_number(typingctx, records, node, column):
+    """``records[node, column]`` of an (n, RECORD) C-contiguous array, addressed by
+    :func:`record_row`."""
+    if not is_record_array(records):
+        return None
+    signature = records.dtype(records, node, column)
+
+    def codegen(context, builder, sig, args):
+        row = record_row(context, builder, sig.args[0], args[0], args[1], sig.args[1])
+        offset = context.cast(builder, args[2], sig.args[2], types.intp)
+        return builder.load(builder.gep(row, [offset], inbounds=True))
+
+    return signature, codegen
+
+
 @inline_kernel
 def child_link(links, node, c):
     """Child ``c``'s link in wide record ``node`` of ``links`` (the records seen as int32): the
     wide node it is, or the leaf order row of its first primitive."""
-    return links[unsigned(node), unsigned(LINK + c)]
+    return _record_number(links, node, LINK + c)
 
 
 @inline_kernel
 def child_count(links, node, c):
     """Child ``c``'s primitive count in wide record ``node``: 0 for an inner node."""
-    return links[unsigned(node), unsigned(COUNT + c)]
+    return _record_number(links, node, COUNT + c)
 
 
 @kernel

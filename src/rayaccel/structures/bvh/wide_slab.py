@@ -65,7 +65,7 @@ from numba.core import cgutils
 from numba.extending import intrinsic
 
 from ..._jit import inline_kernel
-from .wide import WIDTH
+from .wide import WIDTH, is_record_array, record_row
 
 __all__ = ["SLAB_FLOATS", "SLAB_SLACK", "enter_children", "slab_ray", "slab_limits", "box_reach", "highest_bit",
            "lowest_bit", "splat", "tighten_lanes", "tighten_to_slab", "entered_children"]
@@ -170,15 +170,14 @@ def enter_children(typingctx, records, node, near_x, near_y, near_z, slab, enter
     ``near_*`` the column block (0-5) of each axis's near face, ``slab`` the ray's
     :func:`slab_ray`, ``enter_from`` and ``exit_by`` the interval's :func:`slab_limits`,
     ``entry`` a contiguous float64 array of ``WIDTH`` or more."""
+    if not is_record_array(records):
+        return None
     signature = types.int64(records, node, near_x, near_y, near_z, slab, enter_from, exit_by, entry)
 
     def codegen(context, builder, sig, args):
         records_type = sig.args[0]
         array, node_index, *nears, slab_value, enter_limit, exit_limit, entry_array = args
-        view = context.make_array(records_type)(context, builder, array)
-        row = cgutils.get_item_pointer(context, builder, records_type, view,
-                                       [context.cast(builder, node_index, sig.args[1], types.intp),
-                                        context.get_constant(types.intp, 0)])
+        row = record_row(context, builder, records_type, array, node_index, sig.args[1])
         floats = ir.VectorType(ir.FloatType(), WIDTH)
         doubles = ir.VectorType(ir.DoubleType(), WIDTH)
         intp = context.get_value_type(types.intp)

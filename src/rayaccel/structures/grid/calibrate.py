@@ -131,7 +131,7 @@ class _Traversal:
 
     def seconds_per_ray(self) -> float:
         start = time.perf_counter()
-        self._run(np.zeros((0, WORK_COLUMNS), dtype=np.int64))
+        self._run(None)
         return (time.perf_counter() - start) / len(self.rays[0])
 
 

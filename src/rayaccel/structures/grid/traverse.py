@@ -72,7 +72,7 @@ def _walk(ray_first, ray_end, tid, grid_lo, grid_hi, res, cell_size, cell_first,
     calls without clearing as long as each call gets a fresh range of ids.
     """
     nx, ny = res[0], res[1]
-    count_work = work.shape[0] > 0
+    count_work = work is not None
     for i in range(ray_first, ray_end):
         row = result_row(hit_slot, i)
         ray_t_min, ray_t_max = ray_limit(t_min, i), ray_limit(t_max, i)

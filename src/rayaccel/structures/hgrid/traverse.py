@@ -33,7 +33,7 @@ def _walk(ray_first, ray_end, tid, lo, hi, grid_lo, grid_res, grid_cell_size, gr
     stacks in row ``tid``; ``saved_int`` (threads, levels, 7) int64 and ``saved_float``
     (threads, levels, 7) hold the outer walks' DDA states; ``mailbox`` as in the uniform grid; the
     action in ``mode``, as in the uniform grid's walk."""
-    count_work = work.shape[0] > 0
+    count_work = work is not None
     for i in range(ray_first, ray_end):
         row = result_row(hit_slot, i)
         ray_t_min, ray_t_max = ray_limit(t_min, i), ray_limit(t_max, i)

@@ -46,7 +46,7 @@ def _walk(ray_first, ray_end, tid, lo, hi, res, cell_size, cell_first, cell_prim
     child_entry = entry[tid]
     reach_x, reach_y, reach_z = box_reach(lo, hi)
     unusable = 0
-    count_work = work.shape[0] > 0
+    count_work = work is not None
     for i in range(ray_first, ray_end):
         row = result_row(hit_slot, i)
         ray_t_min, ray_t_max = ray_limit(t_min, i), ray_limit(t_max, i)
@@ -89,9 +89,9 @@ def _walk(ray_first, ray_end, tid, lo, hi, res, cell_size, cell_first, cell_prim
                     kind, geom, True, ray, ray_t_min, best_t, best_prim, best_u, best_v, n_tests, n_skips, any_hit)
             else:
                 best_t, best_prim, best_u, best_v, nodes, leaves, n_tests_cell, n_skips_cell = walk_tree(
-                    mode, action, row, records, links, cell_prims, kind, geom, mailbox, tid, stamp, root, slab, near_x,
-                    near_y, near_z, ray, ray_t_min, span_lo, span_hi, best_t, best_prim, best_u, best_v, any_hit,
-                    stack_link, stack_count, stack_t, child_entry)
+                    mode, action, row, records, links, cell_prims, kind, geom, mailbox, tid, stamp, root, 0, slab,
+                    near_x, near_y, near_z, ray, ray_t_min, span_lo, span_hi, best_t, best_prim, best_u, best_v,
+                    any_hit, stack_link, stack_count, stack_t, child_entry)
                 n_steps += nodes
                 n_leaves += leaves
                 n_tests += n_tests_cell

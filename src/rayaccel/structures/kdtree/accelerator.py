@@ -343,7 +343,7 @@ class KdTree(Accelerator):
         incoherent batch through a tree larger than the caches (the ``interleave`` option;
         :func:`rayaccel.ray_order.interleaving_pays`), else one ray at a time."""
         sampled = None
-        if work.shape[0] == 0 and self.options.get("packets", True) and len(batch.origins) >= MIN_PACKET_RAYS:
+        if work is None and self.options.get("packets", True) and len(batch.origins) >= MIN_PACKET_RAYS:
             sampled = sample_neighbours(batch, *self.scene_box)
             if packets_pay(batch, *self.scene_box, sampled) or lane_packets_pay(batch, *self.scene_box, sampled):
                 return kdtree_packet_kernel

@@ -116,7 +116,7 @@ def interleaved_closest_kernel(ray_first, ray_end, tid, lo, hi, node_planes, nod
     (``mailbox`` is empty here)."""
     ints = slot_ints[tid]
     floats = slot_floats[tid]
-    count_work = work.shape[0] > 0
+    count_work = work is not None
     next_ray = ray_first
     for slot in range(slots):
         ints[slot, _RAY] = -1

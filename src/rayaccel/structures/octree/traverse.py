@@ -47,7 +47,7 @@ def _walk(ray_first, ray_end, tid, lo, hi, node_center, node_link, leaf_prims, k
     stacks in row ``tid``; ``stack_node`` (threads, 3 * depth + 4) int32, ``stack_t`` (threads, same, 2);
     ``mailbox`` as in the uniform grid (empty for the closest hit, which needs none); the action in
     ``mode``, as in the uniform grid's walk."""
-    count_work = work.shape[0] > 0
+    count_work = work is not None
     for i in range(ray_first, ray_end):
         row = result_row(hit_slot, i)
         ray_t_min, ray_t_max = ray_limit(t_min, i), ray_limit(t_max, i)
