@@ -54,7 +54,7 @@ from ._cache_key import KernelCache
 
 __all__ = ["kernel", "inline_kernel", "chunk_kernel", "parallel_kernel", "chunk_count", "on_threads",
            "share_among_threads", "set_threads", "thread_count", "max_threads", "thread_id", "thread_rows", "prefetch",
-           "unsigned"]
+           "emit_prefetch", "unsigned"]
 
 _COMMON = dict(nogil=True, error_model="numpy", fastmath=False)
 
@@ -517,13 +517,18 @@ def prefetch(typingctx, array, row, column):
         view = context.make_array(array_type)(context, builder, args[0])
         row_index = context.cast(builder, args[1], sig.args[1], types.intp)
         column_index = context.cast(builder, args[2], sig.args[2], types.intp)
-        pointer = cgutils.get_item_pointer(context, builder, array_type, view,
-                                           [row_index, column_index][:array_type.ndim])
-        byte_pointer = builder.bitcast(pointer, ir.IntType(8).as_pointer())
-        int32 = ir.IntType(32)
-        function_type = ir.FunctionType(ir.VoidType(), [byte_pointer.type, int32, int32, int32])
-        function = cgutils.get_or_insert_function(builder.module, function_type, "llvm.prefetch.p0")
-        builder.call(function, [byte_pointer, int32(0), int32(3), int32(1)])
+        emit_prefetch(builder, cgutils.get_item_pointer(context, builder, array_type, view,
+                                                        [row_index, column_index][:array_type.ndim]))
         return context.get_dummy_value()
 
     return signature, codegen
+
+
+def emit_prefetch(builder, pointer) -> None:
+    """The IR of :func:`prefetch` of the cache line at ``pointer`` (for intrinsics that compute
+    the address themselves)."""
+    byte_pointer = builder.bitcast(pointer, ir.IntType(8).as_pointer())
+    int32 = ir.IntType(32)
+    function_type = ir.FunctionType(ir.VoidType(), [byte_pointer.type, int32, int32, int32])
+    function = cgutils.get_or_insert_function(builder.module, function_type, "llvm.prefetch.p0")
+    builder.call(function, [byte_pointer, int32(0), int32(3), int32(1)])

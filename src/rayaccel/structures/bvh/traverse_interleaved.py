@@ -54,7 +54,6 @@ from ..._validate import unusable_rays
 from ...geometry.primitive import RAY_FLOATS, RAY_INTS, load_ray, ray_setup, store_ray
 from ...rays import ray_at, ray_limit, result_row
 from ..actions import COUNT, NEAREST, finish_misses_in_mode, finish_walked_ray
-from .traverse import enter_box
 from .traverse_wide import descend, visit_leaf
 from .wide_slab import SLAB_FLOATS, box_reach, enter_children, slab_limits, slab_ray
 
@@ -77,44 +76,31 @@ and the slab test's bounds on its interval (float32 numbers kept as float64)."""
 
 
 @inline_kernel
-def _take_ray(slot, next_ray, ray_end, ints, floats, root_box, reach, origins, directions, t_min, t_max, hit_slot,
-              mode, action, work):
-    """Put the next ray of the chunk that enters the whole tree's box into free ``slot``, at the
-    root, finishing the rays before it as misses; returns the index after it. The slot stays
-    free (ray -1) when the chunk has no ray left."""
-    while next_ray < ray_end:
-        i = next_ray
-        next_ray += 1
-        ox, oy, oz, dx, dy, dz = ray_at(origins, directions, i)
-        ix, iy, iz = 1.0 / dx, 1.0 / dy, 1.0 / dz
-        near_x = 0 if ix >= 0.0 else 3
-        near_y = 1 if iy >= 0.0 else 4
-        near_z = 2 if iz >= 0.0 else 5
-        ray_t_max = ray_limit(t_max, i)
-        if enter_box(root_box, 0, ox, oy, oz, ix, iy, iz, near_x, near_y, near_z, ray_limit(t_min, i),
-                     ray_t_max) == np.inf:
-            finish_walked_ray(mode, action, work, result_row(hit_slot, i), ray_t_max, -1, 0.0, 0.0, 0, 0, 0)
-            continue
-        store_ray(ray_setup(ox, oy, oz, dx, dy, dz), floats, ints, slot)
-        ints[slot, _RAY] = i
-        ints[slot, _LINK] = 0
-        ints[slot, _COUNT] = 0
-        ints[slot, _SP] = 0
-        ints[slot, _PRIM] = -1
-        ints[slot, _NEAR_X] = near_x
-        ints[slot, _NEAR_Y] = near_y
-        ints[slot, _NEAR_Z] = near_z
-        ints[slot, _NODES] = 0
-        ints[slot, _TESTS] = 0
-        ints[slot, _LEAVES] = 0
-        slab = slab_ray(ox, oy, oz, dx, dy, dz, ix, iy, iz, reach[0], reach[1], reach[2])
-        _keep_slab(slab, floats, slot)
-        floats[slot, _BEST_T] = ray_t_max
-        _keep_limits(floats, slot, slab, ray_limit(t_min, i), ray_t_max)
-        floats[slot, _BEST_U] = 0.0
-        floats[slot, _BEST_V] = 0.0
-        break
-    return next_ray
+def _take_ray(slot, i, ints, floats, reach, origins, directions, t_min, t_max):
+    """Put ray ``i`` into free ``slot``, at the root: its first step is the root's child test,
+    which is where a ray that misses the whole tree ends (as in :mod:`.traverse_wide`, with no
+    test of the tree's box before it)."""
+    ox, oy, oz, dx, dy, dz = ray_at(origins, directions, i)
+    ix, iy, iz = 1.0 / dx, 1.0 / dy, 1.0 / dz
+    ray_t_max = ray_limit(t_max, i)
+    store_ray(ray_setup(ox, oy, oz, dx, dy, dz), floats, ints, slot)
+    ints[slot, _RAY] = i
+    ints[slot, _LINK] = 0
+    ints[slot, _COUNT] = 0
+    ints[slot, _SP] = 0
+    ints[slot, _PRIM] = -1
+    ints[slot, _NEAR_X] = 0 if ix >= 0.0 else 3
+    ints[slot, _NEAR_Y] = 1 if iy >= 0.0 else 4
+    ints[slot, _NEAR_Z] = 2 if iz >= 0.0 else 5
+    ints[slot, _NODES] = 0
+    ints[slot, _TESTS] = 0
+    ints[slot, _LEAVES] = 0
+    slab = slab_ray(ox, oy, oz, dx, dy, dz, ix, iy, iz, reach[0], reach[1], reach[2])
+    _keep_slab(slab, floats, slot)
+    floats[slot, _BEST_T] = ray_t_max
+    _keep_limits(floats, slot, slab, ray_limit(t_min, i), ray_t_max)
+    floats[slot, _BEST_U] = 0.0
+    floats[slot, _BEST_V] = 0.0
 
 
 @inline_kernel
@@ -174,11 +160,9 @@ def _walk(ray_first, ray_end, tid, root_box, records, links, prim_order, kind, g
             if i < 0:
                 if next_ray == ray_end:
                     continue
-                next_ray = _take_ray(slot, next_ray, ray_end, ints, floats, root_box, reach, origins, directions,
-                                     t_min, t_max, hit_slot, mode, action, work)
-                i = ints[slot, _RAY]
-                if i < 0:
-                    continue
+                _take_ray(slot, next_ray, ints, floats, reach, origins, directions, t_min, t_max)
+                i = next_ray
+                next_ray += 1
             in_flight = True
             stack = unsigned(tid * slots + slot)
             sp = ints[slot, _SP]

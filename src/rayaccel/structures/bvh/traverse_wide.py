@@ -40,14 +40,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..._jit import chunk_kernel, inline_kernel, prefetch, unsigned
+from ..._jit import chunk_kernel, inline_kernel, unsigned
 from ..._validate import unusable_ray
 from ...geometry.gather import LANE_BITS, LANES, is_lanes, prefetch_prim
 from ...geometry.primitive import ray_setup
 from ...rays import ray_at, ray_limit, result_row
 from ..actions import COUNT, NEAREST, finish_ray_in_mode, finish_walked_ray, intersect_references, visit_prim_in_mode
 from .triangle_lanes import edges_admit
-from .wide import child_count, child_link
+from .wide import child_count, child_link, prefetch_record
 from .wide_slab import box_reach, enter_children, highest_bit, lowest_bit, slab_limits, slab_ray
 
 __all__ = ["wide_nearest_kernel", "wide_count_kernel", "wide_crossings_kernel", "prefetch_entry", "push_child",
@@ -59,8 +59,7 @@ def prefetch_entry(records, geom, link, count):
     """Start loading what a walk reads first at the stack entry ``(link, count)``: the four
     cache lines of an inner child's record (``count`` 0), or a leaf's first primitive."""
     if count == 0:
-        for line in range(0, 64, 16):
-            prefetch(records, link, line)
+        prefetch_record(records, link)
     else:
         prefetch_prim(geom, link)
 

@@ -36,12 +36,11 @@ from llvmlite import ir
 from numba import prange, types
 from numba.extending import intrinsic
 
-from ..._jit import inline_kernel, kernel, parallel_kernel
+from ..._jit import emit_prefetch, inline_kernel, kernel, parallel_kernel
 from ..._memory import cache_line_aligned
 
 __all__ = ["WIDTH", "RECORD", "LINK", "COUNT", "child_link", "child_count", "is_record_array", "record_row",
-           "wide_tree", "wide_records",
-           "wide_depth"]
+           "prefetch_record", "wide_tree", "wide_records", "wide_depth"]
 
 WIDTH = 8
 RECORD = 8 * WIDTH
@@ -82,6 +81,23 @@ def _record_number(typingctx, records, node, column):
         row = record_row(context, builder, sig.args[0], args[0], args[1], sig.args[1])
         offset = context.cast(builder, args[2], sig.args[2], types.intp)
         return builder.load(builder.gep(row, [offset], inbounds=True))
+
+    return signature, codegen
+
+
+@intrinsic
+def prefetch_record(typingctx, records, node):
+    """Start loading the four cache lines of wide record ``node`` (:func:`rayaccel._jit.prefetch`),
+    addressed by :func:`record_row`."""
+    if not is_record_array(records):
+        return None
+    signature = types.void(records, node)
+
+    def codegen(context, builder, sig, args):
+        row = record_row(context, builder, sig.args[0], args[0], args[1], sig.args[1])
+        for line in range(0, RECORD, 16):
+            emit_prefetch(builder, builder.gep(row, [ir.Constant(ir.IntType(64), line)], inbounds=True))
+        return context.get_dummy_value()
 
     return signature, codegen
 
