@@ -95,8 +95,9 @@ def prefetch_record(typingctx, records, node):
 
     def codegen(context, builder, sig, args):
         row = record_row(context, builder, sig.args[0], args[0], args[1], sig.args[1])
+        intp = context.get_value_type(types.intp)
         for line in range(0, RECORD, 16):
-            emit_prefetch(builder, builder.gep(row, [ir.Constant(ir.IntType(64), line)], inbounds=True))
+            emit_prefetch(builder, builder.gep(row, [ir.Constant(intp, line)], inbounds=True))
         return context.get_dummy_value()
 
     return signature, codegen
