@@ -6,7 +6,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ._jit import inline_kernel
+from ._jit import inline_kernel, unsigned
 from ._validate import as_per_ray, as_points, check_ray_arrays
 
 __all__ = ["RayBatch", "RayCounters", "WORK_COLUMNS", "Hits", "AllHits", "Camera", "prepare_rays", "random_lines",
@@ -145,22 +145,25 @@ def prepare_rays(origins, directions, t_min=0.0, t_max=np.inf, *, compact: bool 
 def ray_at(origins, directions, i):
     """Ray ``i``'s origin and direction as six float64 numbers, from float64 or float32 arrays: a
     float32 coordinate widens to float64 exactly, so a walk computes the same bits from float32
-    rays as from their float64 copy."""
-    return (np.float64(origins[i, 0]), np.float64(origins[i, 1]), np.float64(origins[i, 2]),
-            np.float64(directions[i, 0]), np.float64(directions[i, 1]), np.float64(directions[i, 2]))
+    rays as from their float64 copy. ``i`` indexes unsigned (:data:`rayaccel._jit.unsigned`), as in
+    :func:`ray_limit` and :func:`result_row`: a ray's index is never negative, and Numba's
+    wrap-around of negative indices cost each read a few instructions."""
+    r = unsigned(i)
+    return (np.float64(origins[r, 0]), np.float64(origins[r, 1]), np.float64(origins[r, 2]),
+            np.float64(directions[r, 0]), np.float64(directions[r, 1]), np.float64(directions[r, 2]))
 
 
 @inline_kernel
 def ray_limit(limits, i):
     """Ray ``i``'s entry of a batch's ``t_min`` or ``t_max``, which may hold one value for all."""
-    return limits[i if limits.shape[0] > 1 else 0]
+    return limits[unsigned(i) if limits.shape[0] > 1 else unsigned(0)]
 
 
 @inline_kernel
 def result_row(hit_slot, i):
     """The row of the results that takes ray ``i``'s answer: ``hit_slot[i]``, or ``i`` when the
     batch's ``hit_slot`` is empty."""
-    return hit_slot[i] if hit_slot.shape[0] > 0 else i
+    return hit_slot[unsigned(i)] if hit_slot.shape[0] > 0 else i
 
 
 class Camera:

@@ -59,9 +59,8 @@ from typing import NamedTuple
 import numpy as np
 from numba.extending import overload
 
-from .._jit import inline_kernel
+from .._jit import inline_kernel, unsigned
 from ..geometry.primitive import cross_prim, intersect_prim
-from ..rays import result_row
 
 __all__ = ["NEAREST", "COUNT", "LIST", "WINDING", "Action", "nearest_hit", "hit_flags", "hit_count", "hit_list",
            "hit_slots", "signed_crossings", "is_closer", "store_hit", "visit_prim", "visit_prim_in_mode", "finish_ray",
@@ -293,22 +292,25 @@ def finish_ray(action, row, best_t, best_prim, best_u, best_v):
 
 @inline_kernel
 def finish_ray_in_mode(mode, action, row, best_t, best_prim, best_u, best_v):
-    """:func:`finish_ray` with the action's mode given apart (see :func:`visit_prim_in_mode`)."""
+    """:func:`finish_ray` with the action's mode given apart (see :func:`visit_prim_in_mode`). The
+    row indexes unsigned (:data:`rayaccel._jit.unsigned`), without Numba's wrap-around of negative
+    indices."""
     if mode == NEAREST:
+        r = unsigned(row)
         if action.hit.shape[0] > 0:
-            action.hit[row] = best_prim >= 0
+            action.hit[r] = best_prim >= 0
         if action.prim.shape[0] > 0:
-            action.prim[row] = best_prim
+            action.prim[r] = best_prim
         if action.geom.shape[0] > 0:
-            action.geom[row] = min(best_prim, 0)
+            action.geom[r] = min(best_prim, 0)
         if action.t.shape[0] > 0:
             hit = best_prim >= 0
             t = best_t if hit else np.inf
             u = best_u if hit else np.nan
             v = best_v if hit else np.nan
-            action.t[row] = t
-            action.u[row] = u
-            action.v[row] = v
+            action.t[r] = t
+            action.u[r] = u
+            action.v[r] = v
 
 
 @inline_kernel
@@ -325,24 +327,23 @@ def finish_walked_ray(mode, action, work, row, best_t, best_prim, best_u, best_v
 @inline_kernel
 def finish_misses_in_mode(mode, action, hit_slot, first, end):
     """:func:`finish_ray_in_mode` for the rays ``first`` to ``end - 1`` of a batch, each of which
-    missed."""
+    missed: a fill of each output's rows ``first`` to ``end - 1`` when the rays are in their rows
+    (an empty ``hit_slot``), else a row at a time."""
     if mode == NEAREST:
-        if action.hit.shape[0] > 0:
-            for i in range(first, end):
-                action.hit[result_row(hit_slot, i)] = False
-        if action.geom.shape[0] > 0:
-            for i in range(first, end):
-                action.geom[result_row(hit_slot, i)] = -1
-        if action.t.shape[0] > 0:
-            for i in range(first, end):
-                row = result_row(hit_slot, i)
-                action.prim[row] = -1
-                action.t[row] = np.inf
-                action.u[row] = np.nan
-                action.v[row] = np.nan
-        elif action.prim.shape[0] > 0:
-            for i in range(first, end):
-                action.prim[result_row(hit_slot, i)] = -1
+        if hit_slot.shape[0] == 0:
+            if action.hit.shape[0] > 0:
+                action.hit[first:end] = False
+            if action.geom.shape[0] > 0:
+                action.geom[first:end] = -1
+            if action.prim.shape[0] > 0:
+                action.prim[first:end] = -1
+            if action.t.shape[0] > 0:
+                action.t[first:end] = np.inf
+                action.u[first:end] = np.nan
+                action.v[first:end] = np.nan
+            return
+        for i in range(first, end):
+            finish_ray_in_mode(mode, action, hit_slot[unsigned(i)], np.inf, -1, 0.0, 0.0)
 
 
 @inline_kernel
