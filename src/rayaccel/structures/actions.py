@@ -61,6 +61,7 @@ from numba.extending import overload
 
 from .._jit import inline_kernel, unsigned
 from ..geometry.primitive import cross_prim, intersect_prim
+from ..rays import result_row
 
 __all__ = ["NEAREST", "COUNT", "LIST", "WINDING", "Action", "nearest_hit", "hit_flags", "hit_count", "hit_list",
            "hit_slots", "signed_crossings", "is_closer", "store_hit", "visit_prim", "visit_prim_in_mode", "finish_ray",
@@ -343,7 +344,7 @@ def finish_misses_in_mode(mode, action, hit_slot, first, end):
                 action.v[first:end] = np.nan
             return
         for i in range(first, end):
-            finish_ray_in_mode(mode, action, hit_slot[unsigned(i)], np.inf, -1, 0.0, 0.0)
+            finish_ray_in_mode(mode, action, result_row(hit_slot, i), np.inf, -1, 0.0, 0.0)
 
 
 @inline_kernel
