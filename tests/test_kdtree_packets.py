@@ -19,8 +19,8 @@ import rayaccel as ra
 from rayaccel.ray_order import MIN_PACKET_RAYS, lane_packets_pay, packets_pay
 from rayaccel.rays import prepare_rays
 from rayaccel.structures.kdtree import accelerator
-from rayaccel.structures.kdtree.layout import PLANE_STEP, plane_bracket
-from rayaccel.structures.kdtree.traverse import cross_split
+from rayaccel.structures.kdtree.layout import plane_bracket
+from rayaccel.structures.kdtree.traverse import cross_split, plane_steps
 from rayaccel.structures.kdtree.traverse_packet import PACKET, PACKET_ROWS, _split_lanes
 
 
@@ -135,8 +135,8 @@ def _split_by_lane_and_alone(state, axis, node_records, slot, alone):
     for r in range(PACKET):
         o, inv = state[axis * PACKET + r], state[(3 + axis) * PACKET + r]
         t0, t1 = state[6 * PACKET + r], state[7 * PACKET + r]
-        nxt, near_t1, pushed, push_t0, push_t1 = cross_split(planes, words[1], 0, o, inv,
-                                                              PLANE_STEP * abs(inv), t0, t1)
+        exit_step, entry_step = plane_steps(inv)
+        nxt, near_t1, pushed, push_t0, push_t1 = cross_split(planes, words[1], 0, o, inv, exit_step, entry_step, t0, t1)
         alone[r, 0], alone[r, 1], alone[r, 2], alone[r, 3], alone[r, 4] = nxt, near_t1, pushed, push_t0, push_t1
     return _split_lanes(state, axis, np.float64(planes[0]), slot)
 

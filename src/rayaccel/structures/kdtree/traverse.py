@@ -36,10 +36,12 @@ from ..actions import NEAREST, finish_ray_in_mode, finish_walked_ray, intersect_
 from ..base import EXIT_MARGIN, settled_before
 from .layout import LEAF, PLANE_FLOOR, PLANE_STEP, leaf_first, node_plane, node_word
 
-__all__ = ["RAY_ROW", "kdtree_closest_kernel", "kdtree_crossings_kernel", "walk_singly", "cross_split", "pop_unsettled"]
+__all__ = ["RAY_ROW", "kdtree_closest_kernel", "kdtree_crossings_kernel", "walk_singly", "plane_steps", "cross_split",
+           "pop_unsettled"]
 
-RAY_ROW = 6
-"""Width of a walk's per-thread ``inv_dir`` row: the ray's reciprocal direction and its plane steps."""
+RAY_ROW = 9
+"""Width of a walk's per-thread ``inv_dir`` row: the ray's reciprocal direction, then its exit and
+entry steps (:func:`plane_steps`)."""
 
 
 @inline_kernel
@@ -48,31 +50,50 @@ def _margin(t):
 
 
 @inline_kernel
-def cross_split(node_planes, word, node, oa, inv_a, step_a, t0, t1):
+def plane_steps(inv_a):
+    """``(exit_step, entry_step)`` of a ray whose reciprocal direction on an axis is ``inv_a``, as
+    :func:`cross_split` reads them: ``PLANE_STEP |inv_a|`` for the face of a plane's bracket where
+    the ray leaves it (the top when ``inv_a`` is positive), 0 for the other face, so that the
+    step adds the bracket's width to the one face without choosing by the direction's sign."""
+    step = PLANE_STEP * inv_a
+    return max(step, 0.0), max(-step, 0.0)
+
+
+@inline_kernel
+def cross_split(node_planes, word, node, oa, inv_a, exit_step_a, entry_step_a, t0, t1):
     """One step at inner ``node`` (its record's second word ``word``) of a ray with origin ``oa``,
-    reciprocal direction ``inv_a`` and ``step_a = PLANE_STEP |inv_a|`` on the node's axis, inside
+    reciprocal direction ``inv_a`` and steps :func:`plane_steps` on the node's axis, inside
     ``[t0, t1]``: ``(next, t1, pushed, push_t0, push_t1)``, the child to visit next with the end
     of its interval (its start stays ``t0``), and the child to push with its interval,
     ``pushed = -1`` when none.
 
     The plane is known to lie in a bracket a float32 step wide (:func:`.layout.plane_bracket`),
-    which the ray crosses over ``width`` from ``t_plane``, where it meets the bracket's bottom:
-    the ray leaves the near child where it leaves the bracket and enters the far one where it
-    enters it. The near child is the one on the side the direction comes from. A ray parallel to
-    the plane whose crossing comes out not a number (``0 * inf`` or ``inf - inf``) visits both
-    children over its whole interval. Which of near, far or both a ray meets is a coin toss to
-    the branch predictor, so the choice is made with selects: against the same step written with
-    branches, forest incoherent rays 1.22 / 1.24 times as fast (closest / any hit), the dragon's
-    1.04 / 1.07, camera and shadow rays 0.97-0.99 (one thread, medians of 5-7 interleaved
-    rounds)."""
+    which the ray crosses from ``t_plane``, where it meets the bracket's bottom, over
+    ``(|plane| + PLANE_FLOOR) PLANE_STEP |inv_a|``: the ray leaves the near child where it leaves
+    the bracket and enters the far one where it enters it. The near child is the one on the side
+    the direction comes from. A ray parallel to the plane whose crossing comes out not a number
+    (``0 * inf`` or ``inf - inf``) visits both children over its whole interval. Which of near,
+    far or both a ray meets is a coin toss to the branch predictor, so the choice is made with
+    selects: against the same step written with branches, forest incoherent rays 1.22 / 1.24
+    times as fast (closest / any hit), the dragon's 1.04 / 1.07, camera and shadow rays 0.97-0.99
+    (one thread, medians of 5-7 interleaved rounds). Selects LLVM keeps as selects: a float chosen
+    by the direction's sign (``t_plane`` or ``t_plane + width``) or on a condition of two
+    comparisons (the near child's end on ``both``) it compiled to branches on AVX2, which
+    Valgrind's simulated predictor missed 6.2 and 3.8 times a ray of the 18.9 steps a forest
+    incoherent ray takes. So the bracket's width goes to its faces by the ray's steps
+    (:func:`plane_steps`), and the near child's end is chosen on ``visit_near`` alone, which gives
+    the same number, since a ray that misses the far child leaves the bracket after ``t1``:
+    mispredicted branches 25.5 -> 15.0 a ray (AVX2 code, simulated), and forest incoherent rays
+    1.04-1.07 times as fast on AVX2 and on AVX-512 code, the full dragon's (interleaved walk)
+    1.00-1.07, camera and shadow rays (packets) 0.95-1.01 (one thread, 2**19 rays, 9-11 rounds
+    alternating with the code before in one process, both orders)."""
     plane = node_plane(node_planes, node)
     below = word >> 2
     t_plane = (plane - oa) * inv_a
-    width = (abs(plane) + PLANE_FLOOR) * step_a
-    positive = inv_a > 0.0
-    t_exit = t_plane + width if positive else t_plane
-    t_entry = t_plane if positive else t_plane - width
-    near = below + np.int64(not positive)
+    bracket = abs(plane) + PLANE_FLOOR
+    t_exit = t_plane + bracket * exit_step_a
+    t_entry = t_plane - bracket * entry_step_a
+    near = below + np.int64(not inv_a > 0.0)
     far = 2 * below + 1 - near
     if t_exit != t_exit or t_entry != t_entry:
         return near, t1, far, t0, t1
@@ -80,7 +101,7 @@ def cross_split(node_planes, word, node, oa, inv_a, step_a, t0, t1):
     both = visit_near & (not (t_entry > t1 + _margin(t1)))
     exit_clamped = min(max(t_exit, t0), t1)
     entry_clamped = min(max(t_entry, t0), t1)
-    return (far + (near - far) * np.int64(visit_near), exit_clamped if both else t1,
+    return (far + (near - far) * np.int64(visit_near), exit_clamped if visit_near else t1,
             far if both else -1, entry_clamped, t1)
 
 
@@ -106,10 +127,9 @@ def walk_singly(ray_first, ray_end, tid, lo, hi, node_planes, node_links, leaf_p
     ``node_planes`` and ``node_links`` are the flat node records (:attr:`.layout.KdTreeArrays.walk_records`);
     ``mailbox`` as in the uniform grid (empty for the closest hit, which needs none). A step
     reads the ray on the node's axis from memory (``inv_dir`` (threads, :data:`RAY_ROW`) holds
-    the ray's reciprocal direction, then ``PLANE_STEP`` times its magnitude, see
-    :func:`cross_split`): taken from a tuple by a varying index, the reciprocal was computed
-    again, a division per step, which took 7 % of the walk's samples (full dragon, incoherent
-    rays, one thread)."""
+    the ray's reciprocal direction, then its exit and entry steps, see :func:`cross_split`):
+    taken from a tuple by a varying index, the reciprocal was computed again, a division per
+    step, which took 7 % of the walk's samples (full dragon, incoherent rays, one thread)."""
     row_of_thread = unsigned(tid)
     for i in range(ray_first, ray_end):
         row = result_row(hit_slot, i)
@@ -121,8 +141,9 @@ def walk_singly(ray_first, ray_end, tid, lo, hi, node_planes, node_links, leaf_p
             finish_ray_in_mode(mode, action, row, np.inf, -1, 0.0, 0.0)
             continue
         for axis in range(3):
-            inv_dir[row_of_thread, axis] = 1.0 / directions[i, axis]
-            inv_dir[row_of_thread, 3 + axis] = PLANE_STEP * abs(inv_dir[row_of_thread, axis])
+            inv_a = 1.0 / directions[i, axis]
+            inv_dir[row_of_thread, axis] = inv_a
+            inv_dir[row_of_thread, 3 + axis], inv_dir[row_of_thread, 6 + axis] = plane_steps(inv_a)
         ray = ray_setup(o[0], o[1], o[2], d[0], d[1], d[2])
         best_t = ray_t_max
         best_prim = -1
@@ -140,7 +161,8 @@ def walk_singly(ray_first, ray_end, tid, lo, hi, node_planes, node_links, leaf_p
             if axis != LEAF:
                 node, t1, pushed, push_t0, push_t1 = cross_split(node_planes, word, node, origins[i, axis],
                                                                   inv_dir[row_of_thread, axis],
-                                                                  inv_dir[row_of_thread, 3 + axis], t0, t1)
+                                                                  inv_dir[row_of_thread, 3 + axis],
+                                                                  inv_dir[row_of_thread, 6 + axis], t0, t1)
                 slot = unsigned(sp)
                 stack_node[row_of_thread, slot] = pushed
                 stack_t[row_of_thread, slot, 0] = push_t0

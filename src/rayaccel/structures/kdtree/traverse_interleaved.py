@@ -46,8 +46,8 @@ from ...geometry.box import clip_to_box
 from ...geometry.primitive import RAY_FLOATS, RAY_INTS, load_ray, ray_setup, store_ray
 from ...rays import ray_limit, result_row
 from ..actions import NEAREST, finish_walked_ray, intersect_references
-from .layout import LEAF, PLANE_STEP, leaf_first, node_word
-from .traverse import cross_split, pop_unsettled
+from .layout import LEAF, leaf_first, node_word
+from .traverse import cross_split, plane_steps, pop_unsettled
 
 __all__ = ["SLOTS", "SLOT_INTS", "SLOT_FLOATS", "interleaved_closest_kernel"]
 
@@ -58,9 +58,9 @@ _RAY, _NODE, _SP, _PRIM, _NODES, _TESTS, _LEAVES = range(RAY_INTS, RAY_INTS + 7)
 SLOT_INTS = RAY_INTS + 7
 """Integers of a ray's state: the ray's shear axes, its index (-1: the slot is free), its node,
 stack size, best primitive and work counters."""
-_INV, _STEP = RAY_FLOATS, RAY_FLOATS + 3
-_T0, _T1, _BEST_T, _BEST_U, _BEST_V = range(RAY_FLOATS + 6, RAY_FLOATS + 11)
-SLOT_FLOATS = RAY_FLOATS + 11
+_INV, _EXIT_STEP, _ENTRY_STEP = RAY_FLOATS, RAY_FLOATS + 3, RAY_FLOATS + 6
+_T0, _T1, _BEST_T, _BEST_U, _BEST_V = range(RAY_FLOATS + 9, RAY_FLOATS + 14)
+SLOT_FLOATS = RAY_FLOATS + 14
 """Floats of a ray's state: its constants of ``ray_setup`` (the origin first), reciprocal
 direction and plane steps (as :data:`.traverse.RAY_ROW`), the interval of its node's cell and its
 best hit."""
@@ -84,8 +84,9 @@ def _take_ray(slot, next_ray, ray_end, ints, floats, lo, hi, origins, directions
             continue
         store_ray(ray_setup(ox, oy, oz, dx, dy, dz), floats, ints, slot)
         for axis in range(3):
-            floats[slot, _INV + axis] = 1.0 / directions[i, axis]
-            floats[slot, _STEP + axis] = PLANE_STEP * abs(floats[slot, _INV + axis])
+            inv_a = 1.0 / directions[i, axis]
+            floats[slot, _INV + axis] = inv_a
+            floats[slot, _EXIT_STEP + axis], floats[slot, _ENTRY_STEP + axis] = plane_steps(inv_a)
         floats[slot, _T0] = t0
         floats[slot, _T1] = t1
         floats[slot, _BEST_T] = ray_t_max
@@ -143,8 +144,10 @@ def interleaved_closest_kernel(ray_first, ray_end, tid, lo, hi, node_planes, nod
                 if count_work:
                     ints[slot, _NODES] += 1
                 node, t1, pushed, push_t0, push_t1 = cross_split(node_planes, word, node, floats[slot, axis],
-                                                                 floats[slot, _INV + axis], floats[slot, _STEP + axis],
-                                                                 floats[slot, _T0], floats[slot, _T1])
+                                                                 floats[slot, _INV + axis],
+                                                                 floats[slot, _EXIT_STEP + axis],
+                                                                 floats[slot, _ENTRY_STEP + axis], floats[slot, _T0],
+                                                                 floats[slot, _T1])
                 prefetch(node_links, 2 * node, 0)
                 top = unsigned(sp)
                 stack_node[stack, top] = pushed
