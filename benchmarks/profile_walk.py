@@ -26,6 +26,13 @@ forest's incoherent rays: 0.9 s a call): keep ``--side`` small (128).
 
     python benchmarks/profile_walk.py --count --side 128 --option packets=False --option interleave=False
 
+``--branches`` adds Valgrind's simulation of the branch predictor to the count
+and lists the conditional branches it misses most: the way to find a choice
+LLVM compiled to a branch where the code asked for a select (NUMBA_CPU_NAME
+picks the instruction set compiled for, e.g. ``haswell`` for AVX2 code).
+
+    NUMBA_CPU_NAME=haswell python benchmarks/profile_walk.py --count --branches --side 128 --method kdtree
+
 The scene is rounded to float32 as the benchmark gives it to every subject
 (``_common.scene_every_subject_traces``). ``--peer embree`` counts Embree
 (through embreex, one thread) on the same rays and triangles instead: its
@@ -129,27 +136,53 @@ def sampled_addresses(perf_data: Path) -> collections.Counter:
     return collections.Counter(int(word, 16) for word in script.stdout.split())
 
 
-def counted_addresses(callgrind_out: Path) -> dict[str, collections.Counter]:
-    """How many times each instruction address ran, by the object file it belongs to (Numba's
-    kernels under ``"???"``), from a ``callgrind`` profile written with ``--dump-instr=yes
-    --dump-line=no --compress-pos=no --compress-strings=no``: its cost lines are ``address
-    count`` (addresses in a shared library relative to its file), ``ob=`` names the object of
-    the lines after it, and the line after each ``calls=`` line holds a call's inclusive cost,
-    which is skipped."""
+def counted_addresses(callgrind_out: Path, event: str = "Ir") -> dict[str, collections.Counter]:
+    """How many times each instruction address ran (``event`` ``Ir``), or with ``--branches`` was
+    a conditional branch (``Bc``) or one the simulated predictor missed (``Bcm``), by the object
+    file it belongs to (Numba's kernels under ``"???"``), from a ``callgrind`` profile written
+    with ``--dump-instr=yes --dump-line=no --compress-pos=no --compress-strings=no``: the
+    ``events:`` line names the columns, cost lines are ``address count ...`` (addresses in a
+    shared library relative to its file, trailing zero counts left out), ``ob=`` names the
+    object of the lines after it, and the line after each ``calls=`` line holds a call's
+    inclusive cost, which is skipped."""
     counts = collections.defaultdict(collections.Counter)
-    after_call, obj = False, "???"
+    after_call, obj, column = False, "???", 1
     with open(callgrind_out) as lines:
         for line in lines:
-            if line.startswith("ob="):
+            if line.startswith("events:"):
+                column = 1 + line.split()[1:].index(event)
+            elif line.startswith("ob="):
                 obj = line[3:].strip()
             elif line.startswith("calls="):
                 after_call = True
             elif line.startswith("0x"):
-                if not after_call:
-                    address, count = line.split()[:2]
-                    counts[obj][int(address, 16)] += int(count)
+                fields = line.split()
+                if not after_call and len(fields) > column:
+                    counts[obj][int(fields[0], 16)] += int(fields[column])
                 after_call = False
     return counts
+
+
+def mispredicted_branches(args, rows: list[tuple[float, int, str]], first: int, end: int, rays: int) -> list[str]:
+    """With ``--branches``: the conditional branches of the region from ``first`` to ``end`` a ray,
+    those Valgrind's simulated predictor missed (two-bit counters, a model of the predictors of
+    about 2004 by Cachegrind's manual: today's miss fewer, but a branch on data that changes from
+    ray to ray stands out in both), and the branches it missed most, each in its context of
+    ``rows``."""
+    conditional = counted_addresses(args.out / "callgrind.out", "Bc")["???"]
+    missed = counted_addresses(args.out / "callgrind.out", "Bcm")["???"]
+    in_region = [address for address in missed if first <= address < end]
+    report = [f"conditional branches {sum(conditional[a] for a in conditional if first <= a < end) / rays:.1f} a "
+              f"ray, mispredicted in Valgrind's simulation {sum(missed[a] for a in in_region) / rays:.2f}"]
+    at_row = {address: k for k, (_, address, _) in enumerate(rows)}
+    for address in sorted(in_region, key=lambda a: -missed[a])[:HOT_INSTRUCTIONS // 2]:
+        if missed[address] < 0.01 * rays:
+            break
+        report.append(f"\n{missed[address] / rays:.2f} mispredicted a ray of {conditional[address] / rays:.2f} at "
+                      f"{address:#x}:")
+        at = at_row.get(address, 0)
+        report.extend(f"  {s:8.2f}  {line}" for s, _, line in rows[max(0, at - CONTEXT_LINES // 2):at + 2])
+    return report
 
 
 def annotate(region: Path, first: int, samples: collections.Counter, total: int, per_ray: bool = False,
@@ -218,6 +251,8 @@ def summarize(args) -> str:
             blocks[address // BLOCK_BYTES * BLOCK_BYTES] += share
         report.append("hottest 64-byte blocks: " + ", ".join(f"{address:#x} {scale * share:.1f} {unit}"
                                                              for address, share in blocks.most_common(10)))
+        if args.branches:
+            report.extend(mispredicted_branches(args, rows, first, end, rays))
         for at in sorted(range(len(rows)), key=lambda k: rows[k][0], reverse=True)[:HOT_INSTRUCTIONS]:
             share, address, _ = rows[at]
             report.append(f"\n{scale * share:.2f} {unit} at {address:#x}:")
@@ -240,6 +275,8 @@ def main() -> None:
                         help="count instructions under Valgrind's callgrind instead of sampling with perf")
     parser.add_argument("--peer", choices=("rayaccel", "embree"), default="rayaccel",
                         help="with --count: count Embree's query on the same rays instead of rayaccel's")
+    parser.add_argument("--branches", action="store_true",
+                        help="with --count: also simulate the branch predictor and list the branches it misses")
     parser.add_argument("--calls", type=int, default=1,
                         help="with --count: query calls counted (after a first one, not counted, that compiles)")
     parser.add_argument("--out", type=Path, default=Path(__file__).parent / "results" / "profile")
@@ -250,6 +287,8 @@ def main() -> None:
         return
     if args.peer != "rayaccel" and not args.count:
         parser.error("--peer embree needs --count")
+    if args.branches and not args.count:
+        parser.error("--branches needs --count")
     profilers = ("valgrind", "callgrind_control") if args.count else ("perf",)
     missing = [tool for tool in (*profilers, "objdump") if shutil.which(tool) is None]
     if missing:
@@ -261,7 +300,8 @@ def main() -> None:
     child = [sys.executable, __file__, "--child", *sys.argv[1:]]
     if args.count:
         callgrind = ["valgrind", "--tool=callgrind", "--instr-atstart=no", "--dump-instr=yes", "--dump-line=no",
-                     "--compress-pos=no", "--compress-strings=no", f"--callgrind-out-file={args.out / 'callgrind.out'}"]
+                     "--compress-pos=no", "--compress-strings=no", f"--callgrind-out-file={args.out / 'callgrind.out'}",
+                     *(["--branch-sim=yes"] if args.branches else [])]
         subprocess.run([*callgrind, *child], check=True,
                        env={**os.environ, "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1"})
     else:
