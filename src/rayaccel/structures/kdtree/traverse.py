@@ -76,14 +76,14 @@ def cross_split(node_planes, word, node, oa, inv_a, exit_step_a, entry_step_a, t
     far or both a ray meets is a coin toss to the branch predictor, so the choice is made with
     selects: against the same step written with branches, forest incoherent rays 1.22 / 1.24
     times as fast (closest / any hit), the dragon's 1.04 / 1.07, camera and shadow rays 0.97-0.99
-    (one thread, medians of 5-7 interleaved rounds). Selects LLVM keeps as selects: a float chosen
-    by the direction's sign (``t_plane`` or ``t_plane + width``) or on a condition of two
-    comparisons (the near child's end on ``both``) it compiled to branches on AVX2, which
-    Valgrind's simulated predictor missed 6.2 and 3.8 times a ray of the 18.9 steps a forest
+    (one thread, medians of 5-7 interleaved rounds). Not every select stayed one: a float chosen
+    by the direction's sign (``t_plane`` or ``t_plane + width``), and one chosen on a condition
+    of two comparisons (the near child's end on ``both``), LLVM compiled to branches on AVX2,
+    which Valgrind's simulated predictor missed 6.2 and 3.8 times in the 18.9 steps a forest
     incoherent ray takes. So the bracket's width goes to its faces by the ray's steps
     (:func:`plane_steps`), and the near child's end is chosen on ``visit_near`` alone, which gives
-    the same number, since a ray that misses the far child leaves the bracket after ``t1``:
-    mispredicted branches 25.5 -> 15.0 a ray (AVX2 code, simulated), and forest incoherent rays
+    the same number, since a ray that reaches the near child but not the far one leaves the
+    bracket after ``t1``: mispredicted branches 25.5 -> 15.0 a ray (AVX2 code, simulated), and forest incoherent rays
     1.04-1.07 times as fast on AVX2 and on AVX-512 code, the full dragon's (interleaved walk)
     1.00-1.07, camera and shadow rays (packets) 0.95-1.01 (one thread, 2**19 rays, 9-11 rounds
     alternating with the code before in one process, both orders)."""
