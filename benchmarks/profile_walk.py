@@ -29,7 +29,9 @@ forest's incoherent rays: 0.9 s a call): keep ``--side`` small (128).
 ``--branches`` adds Valgrind's simulation of the branch predictor to the count
 and lists the conditional branches it misses most: the way to find a choice
 LLVM compiled to a branch where the code asked for a select (NUMBA_CPU_NAME
-picks the instruction set compiled for, e.g. ``haswell`` for AVX2 code).
+picks the instruction set compiled for, e.g. ``haswell`` for AVX2 code). The
+simulated predictor is older than the host's: its misses point at candidates,
+and only the time of a change says whether one costs.
 
     NUMBA_CPU_NAME=haswell python benchmarks/profile_walk.py --count --branches --side 128 --method kdtree
 
