@@ -165,14 +165,12 @@ def counted_addresses(callgrind_out: Path, event: str = "Ir") -> dict[str, colle
     return counts
 
 
-def mispredicted_branches(args, rows: list[tuple[float, int, str]], first: int, end: int, rays: int) -> list[str]:
-    """With ``--branches``: the conditional branches of the region from ``first`` to ``end`` a ray,
-    those Valgrind's simulated predictor missed (two-bit counters, a model of the predictors of
-    about 2004 by Cachegrind's manual: today's miss fewer, but a branch on data that changes from
-    ray to ray stands out in both), and the branches it missed most, each in its context of
-    ``rows``."""
-    conditional = counted_addresses(args.out / "callgrind.out", "Bc")["???"]
-    missed = counted_addresses(args.out / "callgrind.out", "Bcm")["???"]
+def mispredicted_branches(conditional: collections.Counter, missed: collections.Counter,
+                          rows: list[tuple[float, int, str]], first: int, end: int, rays: int) -> list[str]:
+    """With ``--branches``: the conditional branches (``conditional``, by address) of the region
+    from ``first`` to ``end`` a ray, those Valgrind's simulated predictor missed (``missed``; a
+    simpler predictor than the host's, so a candidate to time, not a cost), and the branches it
+    missed most, each in its context of ``rows``."""
     in_region = [address for address in missed if first <= address < end]
     report = [f"conditional branches {sum(conditional[a] for a in conditional if first <= a < end) / rays:.1f} a "
               f"ray, mispredicted in Valgrind's simulation {sum(missed[a] for a in in_region) / rays:.2f}"]
@@ -219,6 +217,8 @@ def summarize(args) -> str:
         counts = by_object["???"]
         rays = int((args.out / "rays.txt").read_text())
         unit, scale = "instructions a ray", 1
+        if args.branches:
+            branches = [counted_addresses(args.out / "callgrind.out", event)["???"] for event in ("Bc", "Bcm")]
     else:
         counts = sampled_addresses(args.out / "perf.data")
         unit, scale = "%", 100
@@ -254,7 +254,7 @@ def summarize(args) -> str:
         report.append("hottest 64-byte blocks: " + ", ".join(f"{address:#x} {scale * share:.1f} {unit}"
                                                              for address, share in blocks.most_common(10)))
         if args.branches:
-            report.extend(mispredicted_branches(args, rows, first, end, rays))
+            report.extend(mispredicted_branches(*branches, rows, first, end, rays))
         for at in sorted(range(len(rows)), key=lambda k: rows[k][0], reverse=True)[:HOT_INSTRUCTIONS]:
             share, address, _ = rows[at]
             report.append(f"\n{scale * share:.2f} {unit} at {address:#x}:")

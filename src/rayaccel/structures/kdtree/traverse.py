@@ -83,10 +83,10 @@ def cross_split(node_planes, word, node, oa, inv_a, exit_step_a, entry_step_a, t
     incoherent ray takes. So the bracket's width goes to its faces by the ray's steps
     (:func:`plane_steps`), and the near child's end is chosen on ``visit_near`` alone, which gives
     the same number, since a ray that reaches the near child but not the far one leaves the
-    bracket after ``t1``: mispredicted branches 25.5 -> 15.0 a ray (AVX2 code, simulated), and forest incoherent rays
-    1.04-1.07 times as fast on AVX2 and on AVX-512 code, the full dragon's (interleaved walk)
-    1.00-1.07, camera and shadow rays (packets) 0.95-1.01 (one thread, 2**19 rays, 9-11 rounds
-    alternating with the code before in one process, both orders)."""
+    bracket after ``t1``: mispredicted branches 25.5 -> 15.0 a ray (AVX2 code, simulated), and
+    forest incoherent rays 1.04-1.07 times as fast on AVX2 and on AVX-512 code, the full dragon's
+    (interleaved walk) 1.00-1.07, camera and shadow rays (packets) 0.95-1.01 (one thread, 2**19
+    rays, 9-11 rounds alternating with the code before in one process, both orders)."""
     plane = node_plane(node_planes, node)
     below = word >> 2
     t_plane = (plane - oa) * inv_a
