@@ -307,7 +307,7 @@ class KdTree(Accelerator):
         walk = self._nearest_walk(batch, work) if action.mode == NEAREST else kdtree_crossings_kernel
         with self._mailboxes_for(action).lend(n_rays) as (mailbox, base):
             rays = (k.lo, k.hi, *k.walk_records, k.leaf_prims, self.scene.kind, self.geometry, *batch, any_hit,
-                    mailbox, base)
+                    mailbox if mailbox.shape[0] else None, base)
             if walk is kdtree_packet_kernel:
                 walk_rays(walk, n_rays, *rays, *self._stacks(rows), thread_rows((rows, RAY_ROW)),
                           thread_rows((rows, self.max_depth + 2), np.int64),

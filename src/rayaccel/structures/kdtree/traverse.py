@@ -34,10 +34,11 @@ from ...geometry.primitive import ray_setup
 from ...rays import ray_limit, result_row
 from ..actions import NEAREST, finish_ray_in_mode, finish_walked_ray, intersect_references
 from ..base import EXIT_MARGIN, settled_before
+from ..bvh.traverse_wide import visit_leaf
 from .layout import LEAF, PLANE_FLOOR, PLANE_STEP, leaf_first, node_plane, node_word
 
 __all__ = ["RAY_ROW", "kdtree_closest_kernel", "kdtree_crossings_kernel", "walk_singly", "plane_steps", "cross_split",
-           "pop_unsettled"]
+           "pop_unsettled", "visit_references"]
 
 RAY_ROW = 9
 """Width of a walk's per-thread ``inv_dir`` row: the ray's reciprocal direction, then its exit and
@@ -119,6 +120,29 @@ def pop_unsettled(stack_node, stack_t, row, sp, best_prim, best_t, t0, t1):
 
 
 @inline_kernel
+def visit_references(mode, action, row, first, end, leaf_prims, mailbox, tid, stamp, kind, geom, ray, t_min, best_t,
+                     best_prim, best_u, best_v, any_hit):
+    """Visit a leaf's references ``first`` to ``end - 1`` with the action: ``(best_t, best_prim,
+    best_u, best_v, tests)``. With a mailbox, through :func:`..actions.intersect_references`,
+    which skips the primitives the ray met in an earlier leaf; with ``None`` (the closest and
+    any hit, which need none), through the BVH's :func:`..bvh.traverse_wide.visit_leaf`, which
+    tests the edges of four triangles of the float32 lanes at once before any triangle in full.
+    The mailbox's type chooses before Numba types the walk, so that only one is compiled.
+    Against testing every reference in full (one thread, 2**19 rays, 9 rounds alternating with
+    the code before in one process, both orders, closest / any hit, 2026-12-02):
+    forest-small-chair incoherent rays (this walk) 1.12-1.13 / 1.10-1.13, camera rays (packets)
+    1.20 / 1.16, shadow rays 1.21 / 1.21-1.24; the full dragon's camera rays 1.21-1.23 /
+    1.17, shadow rays 1.24-1.27 / 1.24-1.30; the same answers."""
+    if mailbox is None:
+        return visit_leaf(mode, action, row, kind, geom, leaf_prims, first, end - first, ray, t_min, best_t,
+                          best_prim, best_u, best_v, any_hit)
+    best_t, best_prim, best_u, best_v, tests, _ = intersect_references(
+        mode, action, row, first, end, leaf_prims, mailbox, tid, stamp, kind, geom, True, ray, t_min, best_t,
+        best_prim, best_u, best_v, 0, 0, any_hit)
+    return best_t, best_prim, best_u, best_v, tests
+
+
+@inline_kernel
 def walk_singly(ray_first, ray_end, tid, lo, hi, node_planes, node_links, leaf_prims, kind, geom, origins,
                 directions, t_min, t_max, hit_slot, any_hit, mailbox, ray_id_base, stack_node, stack_t, inv_dir, mode,
                 action, work):
@@ -171,9 +195,10 @@ def walk_singly(ray_first, ray_end, tid, lo, hi, node_planes, node_links, leaf_p
                 continue
             n_leaves += 1
             first = leaf_first(node_links, node)
-            best_t, best_prim, best_u, best_v, n_tests, _ = intersect_references(
+            best_t, best_prim, best_u, best_v, tests = visit_references(
                 mode, action, row, first, first + (word >> 2), leaf_prims, mailbox, tid, ray_id_base + i, kind,
-                geom, True, ray, ray_t_min, best_t, best_prim, best_u, best_v, n_tests, 0, any_hit)
+                geom, ray, ray_t_min, best_t, best_prim, best_u, best_v, any_hit)
+            n_tests += tests
             if any_hit and best_prim >= 0:
                 break
             node, t0, t1, sp = pop_unsettled(stack_node, stack_t, tid, sp, best_prim, best_t, t0, t1)

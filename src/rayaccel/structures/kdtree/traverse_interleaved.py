@@ -28,7 +28,13 @@ Twelve slots: on the full dragon's closest hit 4, 8 and 12 gave 1.22, 1.41 and
 1.44 in one run, 16 gave 1.00 where 12 gave 1.05 in another. A variant that
 prefetched a leaf's first primitive and tested the leaf at the ray's next turn
 measured the same as testing it at once, within the noise (0.83-1.10 of it
-over three runs). A ray goes on within its turn for no more than one node:
+over three runs). A leaf's triangles are tested one by one
+(:func:`rayaccel.structures.actions.intersect_references`), not four edge tests at once as the
+other walks do (:func:`.traverse.visit_references`): a leaf of the full dragon holds about four
+references, which mostly straddle two groups of the lanes, so the lanes read twice the bytes,
+and this walk waits on memory: with them, the dragon's incoherent rays ran at 0.95-1.00 of the
+speed (one thread, 2**19 rays, 9 rounds alternating with the code before in one process, both
+orders, 2026-12-02). A ray goes on within its turn for no more than one node:
 stepping on while the next record lay in the same 64-byte line (68 % of the
 children below a plane and 47 % above it, full dragon) traced 2.51 / 2.68
 Mrays/s against 3.31 / 3.52 (two threads, 2**20 rays as given), level with one
@@ -114,7 +120,7 @@ def interleaved_closest_kernel(ray_first, ray_end, tid, lo, hi, node_planes, nod
     ``stack_t``. The other arguments, and the counters, are those of
     :func:`.traverse.walk_singly`. Only these queries: the counting and collecting actions stamp
     each primitive a ray meets in the thread's mailbox row, which the rays in flight would share
-    (``mailbox`` is empty here)."""
+    (``mailbox`` is ``None`` here)."""
     ints = slot_ints[tid]
     floats = slot_floats[tid]
     count_work = work is not None

@@ -40,11 +40,11 @@ from ...geometry.box import clip_to_box
 from ...geometry.primitive import ray_setup
 from ...ray_tiles import TILE_COLUMNS, TILE_ROWS, first_tile, lane_ray, next_tile, run_rays
 from ...rays import ray_limit, result_row
-from ..actions import NEAREST, finish_ray_in_mode, intersect_references
+from ..actions import NEAREST, finish_ray_in_mode
 from ..base import EXIT_MARGIN, settled_before
 from ..bvh.wide_slab import highest_bit, splat
 from .layout import LEAF, PLANE_FLOOR, PLANE_STEP, leaf_first, node_plane, node_word
-from .traverse import walk_singly
+from .traverse import visit_references, walk_singly
 
 __all__ = ["PACKET", "PACKET_ROWS", "kdtree_packet_kernel"]
 
@@ -202,10 +202,9 @@ def _visit_leaf_lanes(action, hit_slot, first, end, leaf_prims, mailbox, tid, ra
         i = lane_ray(packet_first, r, packet_second)
         ray = ray_setup(origins[i, 0], origins[i, 1], origins[i, 2], directions[i, 0], directions[i, 1],
                         directions[i, 2])
-        best_t, prim, best_u, best_v, _, _ = intersect_references(
+        best_t, prim, best_u, best_v, _ = visit_references(
             NEAREST, action, result_row(hit_slot, i), first, end, leaf_prims, mailbox, tid, ray_id_base + i, kind,
-            geom, True, ray, state[_T_MIN + r], state[_BEST + r], best_prim[r], state[_U + r], state[_V + r], 0, 0,
-            any_hit)
+            geom, ray, state[_T_MIN + r], state[_BEST + r], best_prim[r], state[_U + r], state[_V + r], any_hit)
         state[_BEST + r] = best_t
         best_prim[r] = prim
         state[_U + r] = best_u
