@@ -301,11 +301,11 @@ def _vector_and_scalar_child_tests():
         reach = box_reach(bound[0, :3], bound[0, 3:])
         slab = slab_ray(o[0], o[1], o[2], d[0], d[1], d[2], inv[0], inv[1], inv[2], reach[0], reach[1], reach[2])
         enter_from, exit_by = slab_limits(slab, t_min, t_max)
-        vector = np.empty(WIDTH)
+        vector = np.empty(WIDTH, dtype=np.float32)
         mask = enter_children(records, node, near[0], near[1], near[2], slab, enter_from, exit_by, vector)
         scalar = [enter_box(boxes, c, o[0], o[1], o[2], inv[0], inv[1], inv[2], near[0], near[1], near[2], t_min,
                             t_max) for c in range(WIDTH)]
-        return vector, scalar, mask
+        return vector.astype(np.float64) * slab[9], scalar, mask
 
     return both
 

@@ -295,12 +295,12 @@ class BoundingVolumeHierarchy(Accelerator):
                                                                        caches=_INTERLEAVE_CACHES):
             walk = _INTERLEAVED_WALKS.get(action.mode, interleaved_crossings_kernel)
             return walk_rays(walk, len(batch.origins), self.root_record, *tree, *batch, any_hit,
-                             *self._wide_stacks(rows * SLOTS), thread_rows((rows, WIDTH)), SLOTS,
+                             *self._wide_stacks(rows * SLOTS), thread_rows((rows, WIDTH), np.float32), SLOTS,
                              thread_rows((rows, SLOTS, SLOT_INTS), np.int64), thread_rows((rows, SLOTS, SLOT_FLOATS)),
                              action, work)
         walk = _WIDE_WALKS.get(action.mode, wide_crossings_kernel)
         return walk_rays(walk, len(batch.origins), self.root_record, *tree, *batch, any_hit, *self._wide_stacks(rows),
-                         thread_rows((rows, WIDTH)), action, work)
+                         thread_rows((rows, WIDTH), np.float32), action, work)
 
     def _wide_stacks(self, rows: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``rows`` stacks deep enough for the eight-wide walks: the entries' links, primitive

@@ -179,8 +179,9 @@ def _walk(ray_first, ray_end, tid, root_box, records, links, prim_order, kind, g
                                          np.float32(floats[slot, _ENTER_FROM]), np.float32(floats[slot, _EXIT_BY]),
                                          child_entry)
                 if entered != 0:
-                    link, next_count, sp = descend(records, links, geom, link, entered, child_entry, stack_link,
-                                                   stack_count, stack_t, stack, sp, nearest_first, True)
+                    link, next_count, sp = descend(records, links, geom, link, entered, child_entry,
+                                                   floats[slot, _SLAB + 9], stack_link, stack_count, stack_t, stack,
+                                                   sp, nearest_first, True)
             else:
                 ints[slot, _LEAVES] += 1
                 best_t, best_prim, best_u, best_v, tests = visit_leaf(mode, action, result_row(hit_slot, i), kind,

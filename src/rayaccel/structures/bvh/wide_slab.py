@@ -16,9 +16,11 @@ axis, two loads of eight float32 components, then subtract, multiply and
 select on all eight children at once, in float32 (one ``ymm`` register of
 eight lanes on AVX2; float64 lanes took two, and a ``zmm`` register on
 AVX-512 is two halves on AMD's Zen 4), clipped to float32 bounds on the ray's
-``[t_min, t_max]``; only the entry distances are widened to float64. It returns the
-entered children as the bits of an integer, which the traversal walks with
-:func:`highest_bit`, as Embree's does with its ``movemask``.
+``[t_min, t_max]``. It returns the entered children as the bits of an integer,
+which the traversal walks with :func:`highest_bit`, as Embree's does with its
+``movemask``, and leaves their entry distances in float32, along the scaled
+direction: the walk widens and scales back only those it pushes
+(:func:`.traverse_wide.descend`), as Embree keeps its node distances in float.
 
 The float32 test is conservative, in the manner of Ize's "Robust BVH Ray
 Traversal" (JCGT 2013): it enters every box the exact float64 test enters, at
@@ -169,8 +171,10 @@ def enter_children(typingctx, records, node, near_x, near_y, near_z, slab, enter
     conservatively (see the module docstring). ``records`` is the (n, 64) float32 wide layout,
     ``near_*`` the column block (0-5) of each axis's near face, ``slab`` the ray's
     :func:`slab_ray`, ``enter_from`` and ``exit_by`` the interval's :func:`slab_limits`,
-    ``entry`` a contiguous float64 array of ``WIDTH`` or more."""
-    if not is_record_array(records):
+    ``entry`` a contiguous float32 array of ``WIDTH`` or more. The distances are the float32
+    lanes' own, along the scaled direction: ``slab[9]`` times one is the ray's distance, which a
+    walk computes for the children it pushes alone (:func:`.traverse_wide.descend`)."""
+    if not is_record_array(records) or entry.dtype != types.float32:
         return None
     signature = types.int64(records, node, near_x, near_y, near_z, slab, enter_from, exit_by, entry)
 
@@ -179,7 +183,6 @@ def enter_children(typingctx, records, node, near_x, near_y, near_z, slab, enter
         array, node_index, *nears, slab_value, enter_limit, exit_limit, entry_array = args
         row = record_row(context, builder, records_type, array, node_index, sig.args[1])
         floats = ir.VectorType(ir.FloatType(), WIDTH)
-        doubles = ir.VectorType(ir.DoubleType(), WIDTH)
         intp = context.get_value_type(types.intp)
 
         def component(block):
@@ -189,7 +192,6 @@ def enter_children(typingctx, records, node, near_x, near_y, near_z, slab, enter
         def constant(k):
             return splat(builder, builder.extract_value(slab_value, k), floats)
 
-        scale = builder.extract_value(slab_value, 9)
         enter = splat(builder, enter_limit, floats)
         exit_ = splat(builder, exit_limit, floats)
         used = None
@@ -202,8 +204,7 @@ def enter_children(typingctx, records, node, near_x, near_y, near_z, slab, enter
                 used = builder.fcmp_ordered("ord", faces, faces)
             enter, exit_ = tighten_to_slab(builder, near_face, far_face, constant(axis), constant(6 + axis), enter,
                                            exit_, far_origin=constant(3 + axis))
-        return entered_children(context, builder, sig.args[8], entry_array, enter, exit_, used,
-                                builder.fmul(builder.fpext(enter, doubles), splat(builder, scale, doubles)))
+        return entered_children(context, builder, sig.args[8], entry_array, enter, exit_, used)
 
     return signature, codegen
 
@@ -234,20 +235,18 @@ def tighten_to_slab(builder, near_face, far_face, origin, inverse, enter, exit_,
     return tighten_lanes(builder, near, far, enter, exit_)
 
 
-def entered_children(context, builder, entry_type, entry_array, enter, exit_, used=None, distance=None):
-    """The IR that ends a test of eight child boxes: stores each child's entry distance (``inf``
-    where the interval is empty, or the slot is not ``used``) into the float64 ``entry`` array
-    and returns the mask of the entered. ``distance``, the entry distances in float64, defaults
-    to ``enter`` itself."""
+def entered_children(context, builder, entry_type, entry_array, enter, exit_, used=None):
+    """The IR that ends a test of eight child boxes: stores each child's entry distance ``enter``
+    (``inf`` where the interval is empty, or the slot is not ``used``) into the ``entry`` array,
+    whose elements are of ``enter``'s type, and returns the mask of the entered."""
     entered = builder.fcmp_ordered("<=", enter, exit_)
     if used is not None:
         entered = builder.and_(entered, used)
-    distance = enter if distance is None else distance
-    doubles = distance.type
-    missed = ir.Constant(doubles, [float("inf")] * WIDTH)
+    lanes = enter.type
+    missed = ir.Constant(lanes, [float("inf")] * WIDTH)
     entry_view = context.make_array(entry_type)(context, builder, entry_array)
-    builder.store(builder.select(entered, distance, missed), builder.bitcast(entry_view.data, doubles.as_pointer()),
-                  align=8)
+    builder.store(builder.select(entered, enter, missed), builder.bitcast(entry_view.data, lanes.as_pointer()),
+                  align=entry_type.dtype.bitwidth // 8)
     return builder.zext(builder.bitcast(entered, ir.IntType(WIDTH)), ir.IntType(64))
 
 

@@ -99,7 +99,7 @@ class GridBvh(Accelerator):
         rows = numba.config.NUMBA_NUM_THREADS
         depth = (WIDTH - 1) * self.bvh_depth + 2
         stacks = (thread_rows((rows, depth), np.int32), thread_rows((rows, depth), np.int32),
-                  thread_rows((rows, depth)), thread_rows((rows, WIDTH)))
+                  thread_rows((rows, depth)), thread_rows((rows, WIDTH), np.float32))
         with self._mailboxes_for(action).lend(len(batch.origins)) as (mailbox, base):
             walk = grid_bvh_nearest_kernel if action.mode == NEAREST else grid_bvh_crossings_kernel
             return walk_rays(walk, len(batch.origins), h.lo, h.hi, h.res, h.cell_size, h.cell_first, h.cell_prims,
