@@ -490,7 +490,7 @@ def thread_rows(shape, dtype=np.float64) -> np.ndarray:
     128-byte boundary, the second axis lengthened as needed: two threads writing their own rows
     never write into one cache line, nor into the pair of lines the adjacent-line prefetcher
     fetches together. ``np.empty`` aligns to 16 bytes only, so the two rows of the eight-wide
-    BVH walk's child entry distances (64 bytes each, written at every node) could share a line.
+    BVH walk's child entry distances (32 bytes each, written at every node) could share a line.
     No speed-up was measured from this alone (the two-thread timings of this machine vary more
     than false sharing on one line would explain); it removes the hazard, not a measured cost."""
     dtype = np.dtype(dtype)

@@ -48,6 +48,7 @@ from .traverse_packet import (
 from .traverse_wide import wide_count_kernel, wide_crossings_kernel, wide_nearest_kernel
 from .volumes import fit_kdops, fit_spheres
 from .wide import WIDTH, wide_records, wide_tree
+from .wide_slab import child_entry_rows
 
 __all__ = ["BVH_CLASSES"]
 
@@ -295,12 +296,12 @@ class BoundingVolumeHierarchy(Accelerator):
                                                                        caches=_INTERLEAVE_CACHES):
             walk = _INTERLEAVED_WALKS.get(action.mode, interleaved_crossings_kernel)
             return walk_rays(walk, len(batch.origins), self.root_record, *tree, *batch, any_hit,
-                             *self._wide_stacks(rows * SLOTS), thread_rows((rows, WIDTH), np.float32), SLOTS,
+                             *self._wide_stacks(rows * SLOTS), child_entry_rows(rows), SLOTS,
                              thread_rows((rows, SLOTS, SLOT_INTS), np.int64), thread_rows((rows, SLOTS, SLOT_FLOATS)),
                              action, work)
         walk = _WIDE_WALKS.get(action.mode, wide_crossings_kernel)
         return walk_rays(walk, len(batch.origins), self.root_record, *tree, *batch, any_hit, *self._wide_stacks(rows),
-                         thread_rows((rows, WIDTH), np.float32), action, work)
+                         child_entry_rows(rows), action, work)
 
     def _wide_stacks(self, rows: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``rows`` stacks deep enough for the eight-wide walks: the entries' links, primitive

@@ -87,6 +87,12 @@ def push_child(records, geom, stack_link, stack_count, stack_t, tid, base, sp, t
 
 
 @inline_kernel
+def _ray_distance(child_entry, c, entry_scale):
+    """Child ``c``'s entry distance along the ray, from the float32 one of ``child_entry``."""
+    return np.float64(child_entry[unsigned(c)]) * entry_scale
+
+
+@inline_kernel
 def descend(records, links, geom, node, entered, child_entry, entry_scale, stack_link, stack_count, stack_t, tid, sp,
             nearest_first, prefetch_next):
     """Choose the entry a walk goes on with among the children of wide ``node`` it enters (the
@@ -106,7 +112,7 @@ def descend(records, links, geom, node, entered, child_entry, entry_scale, stack
     2026-12-03): forest-small-chair incoherent 1.11-1.13 / 1.05-1.11 (1,219 -> 1,174
     instructions a ray counted, closest hit, 2**14 rays), camera 1.02-1.04 / 1.08-1.10,
     shadow 1.05 / 0.99-1.06; the full dragon's incoherent rays (interleaved walk) 1.03-1.04 /
-    1.02-1.04, camera and shadow rays (packets, whose walk is unchanged) 0.98-1.06; the
+    1.02-1.04, camera and shadow rays 0.98-1.06; the
     grid-BVH's cells on the forest: incoherent 1.07-1.15 / 0.94-1.14, camera 1.09 / 1.14-1.15,
     shadow 1.18 / 1.18-1.21."""
     c = highest_bit(entered)
@@ -120,8 +126,8 @@ def descend(records, links, geom, node, entered, child_entry, entry_scale, stack
                 entered ^= 1 << c
                 count = child_count(links, node, c)
                 sp = push_child(records, geom, stack_link, stack_count, stack_t, tid, base, sp,
-                                np.float64(child_entry[unsigned(c)]) * entry_scale, child_link(links, node, c),
-                                count, count, True)
+                                _ray_distance(child_entry, c, entry_scale), child_link(links, node, c), count,
+                                count, True)
             sp -= 1
             return stack_link[unsigned(tid), unsigned(sp)], stack_count[unsigned(tid), unsigned(sp)], sp
         near, far = (d, c) if child_entry[unsigned(d)] <= child_entry[unsigned(c)] else (c, d)
@@ -129,8 +135,7 @@ def descend(records, links, geom, node, entered, child_entry, entry_scale, stack
     while others != 0:
         count = child_count(links, node, c)
         sp = push_child(records, geom, stack_link, stack_count, stack_t, tid, sp, sp,
-                        np.float64(child_entry[unsigned(c)]) * entry_scale, child_link(links, node, c), count, count,
-                        False)
+                        _ray_distance(child_entry, c, entry_scale), child_link(links, node, c), count, count, False)
         c = highest_bit(others)
         others ^= 1 << c
     link = child_link(links, node, c)

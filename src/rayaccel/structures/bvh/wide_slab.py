@@ -66,11 +66,11 @@ from numba import types
 from numba.core import cgutils
 from numba.extending import intrinsic
 
-from ..._jit import inline_kernel
+from ..._jit import inline_kernel, thread_rows
 from .wide import WIDTH, is_record_array, record_row
 
-__all__ = ["SLAB_FLOATS", "SLAB_SLACK", "enter_children", "slab_ray", "slab_limits", "box_reach", "highest_bit",
-           "lowest_bit", "splat", "tighten_lanes", "tighten_to_slab", "entered_children"]
+__all__ = ["SLAB_FLOATS", "SLAB_SLACK", "child_entry_rows", "enter_children", "slab_ray", "slab_limits", "box_reach",
+           "highest_bit", "lowest_bit", "splat", "tighten_lanes", "tighten_to_slab", "entered_children"]
 
 SLAB_FLOATS = 11
 """Numbers of a ray's :func:`slab_ray`."""
@@ -163,6 +163,12 @@ def box_reach(lo, hi):
             max(abs(np.float64(lo[2])), abs(np.float64(hi[2]))))
 
 
+def child_entry_rows(rows):
+    """Per-thread rows (:func:`rayaccel._jit.thread_rows`) for the entry distances
+    :func:`enter_children` writes, ``rows`` of them."""
+    return thread_rows((rows, WIDTH), np.float32)
+
+
 @intrinsic
 def enter_children(typingctx, records, node, near_x, near_y, near_z, slab, enter_from, exit_by, entry):
     """Test the ray against the child boxes of wide ``node``: writes into ``entry[c]`` a distance
@@ -171,9 +177,10 @@ def enter_children(typingctx, records, node, near_x, near_y, near_z, slab, enter
     conservatively (see the module docstring). ``records`` is the (n, 64) float32 wide layout,
     ``near_*`` the column block (0-5) of each axis's near face, ``slab`` the ray's
     :func:`slab_ray`, ``enter_from`` and ``exit_by`` the interval's :func:`slab_limits`,
-    ``entry`` a contiguous float32 array of ``WIDTH`` or more. The distances are the float32
-    lanes' own, along the scaled direction: ``slab[9]`` times one is the ray's distance, which a
-    walk computes for the children it pushes alone (:func:`.traverse_wide.descend`)."""
+    ``entry`` a contiguous float32 array of ``WIDTH`` or more (a row of :func:`child_entry_rows`).
+    The distances are the float32 lanes' own, along the scaled direction; multiplied by
+    ``slab[9]`` they are the ray's, which a walk computes for the children it pushes alone
+    (:func:`.traverse_wide.descend`)."""
     if not is_record_array(records) or entry.dtype != types.float32:
         return None
     signature = types.int64(records, node, near_x, near_y, near_z, slab, enter_from, exit_by, entry)

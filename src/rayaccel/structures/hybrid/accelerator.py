@@ -15,6 +15,7 @@ from ...stats import box_area, surface_area_stats
 from ..actions import NEAREST
 from ..base import Accelerator, walk_rays
 from ..bvh.wide import WIDTH, wide_records, wide_tree
+from ..bvh.wide_slab import child_entry_rows
 from ..grid.mailbox import MailboxPool
 from ..grid.nearest import grid_nearest
 from .build_grid_bvh import build_grid_bvh
@@ -99,7 +100,7 @@ class GridBvh(Accelerator):
         rows = numba.config.NUMBA_NUM_THREADS
         depth = (WIDTH - 1) * self.bvh_depth + 2
         stacks = (thread_rows((rows, depth), np.int32), thread_rows((rows, depth), np.int32),
-                  thread_rows((rows, depth)), thread_rows((rows, WIDTH), np.float32))
+                  thread_rows((rows, depth)), child_entry_rows(rows))
         with self._mailboxes_for(action).lend(len(batch.origins)) as (mailbox, base):
             walk = grid_bvh_nearest_kernel if action.mode == NEAREST else grid_bvh_crossings_kernel
             return walk_rays(walk, len(batch.origins), h.lo, h.hi, h.res, h.cell_size, h.cell_first, h.cell_prims,
