@@ -25,6 +25,7 @@ from .actions import (
 )
 from .grid.mailbox import MailboxPool
 from .hit_slots import hit_arrays, kept_hits
+from .large_primitives import LargePrimitives, large_primitives, unsettled_rays
 from .point_queries import PointQueries, any_dask
 
 __all__ = ["Accelerator", "is_closer", "intersect_references", "store_hit", "settled_before", "walk_rays",
@@ -342,9 +343,26 @@ class Accelerator(PointQueries):
 
     def _walk_prepared(self, rays, reorder, any_hit, action, work) -> None:
         """Trace :meth:`_prepare_rays`'s rays with ``action``; when the walk met rays it could not
-        use, the check it skipped runs to raise the error."""
-        if len(rays.origins) and self._trace(self._ordered(rays, reorder), any_hit, action, work):
+        use, the check it skipped runs to raise the error. An any-hit query without counters first
+        lets the scene's large primitives answer the rays they can (:mod:`.large_primitives`)."""
+        walked = rays
+        if any_hit and work is None and len(rays.origins) and self._large_primitives_first:
+            walked = unsettled_rays(self._large_primitives, self.scene.kind, rays, action)
+        if walked is not None and len(walked.origins) and self._trace(self._ordered(walked, reorder), any_hit,
+                                                                      action, work):
             check_ray_arrays(rays.origins, rays.directions)
+
+    _large_primitives_first = True
+    """Whether any-hit queries test the scene's large primitives before the walk: true for the
+    spatial subdivisions, which reference such a primitive from every cell it crosses and reach it
+    only after the cells before it on the ray (forest-small-chair, 2**19 incoherent rays, one
+    thread, any hit, speed with over without: kdtree 1.21, grid 1.44, hgrid 1.35, octree 2.03,
+    grid-bvh 1.14; camera and shadow rays 1.00-1.04)."""
+
+    @functools.cached_property
+    def _large_primitives(self) -> LargePrimitives:
+        """The primitives any-hit queries test before the walk (:func:`.large_primitives.large_primitives`)."""
+        return large_primitives(self.scene, *self.scene_box)
 
     @property
     def _walk_checks_rays(self) -> bool:

@@ -70,6 +70,7 @@ class BruteForce(Accelerator):
 
     method = "none"
     build_bytes_per_primitive = 16
+    _large_primitives_first = False
 
     def __init__(self, scene):
         super().__init__(scene, {})

@@ -1,0 +1,142 @@
+"""Any-hit queries settled by the scene's large primitives before the walk, against brute force."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import rayaccel as ra
+from rayaccel.structures.actions import hit_flags
+from rayaccel.structures.large_primitives import LARGE_SHARE, MAX_LARGE, SAMPLED_RAYS, large_primitives, unsettled_rays
+
+SETTLING = [m for m in ra.methods() if ra.build_class(m)._large_primitives_first]
+GROUND = 10.0
+
+
+def ground_and_clutter(n_small=400, seed=3):
+    """A square ground of two triangles at ``y = 0`` (faces 0 and 1) under small random triangles."""
+    rng = np.random.default_rng(seed)
+    ground = np.array([[0, 0, 0], [GROUND, 0, 0], [GROUND, 0, GROUND], [0, 0, GROUND]], dtype=float)
+    centres = rng.uniform([0, 0.2, 0], [GROUND, 3, GROUND], size=(n_small, 1, 3))
+    small = (centres + rng.normal(scale=0.3, size=(n_small, 3, 3))).reshape(-1, 3)
+    faces = np.vstack([[[0, 1, 2], [0, 2, 3]], 4 + np.arange(3 * n_small).reshape(-1, 3)])
+    return ra.TriangleMesh(np.vstack([ground, small]), faces)
+
+
+def rays_meeting_the_ground(n, seed=0):
+    """Origins over the ground, half the directions downward; some rays start on the ground, some go
+    straight down through its diagonal and corners, and ``t_min``, ``t_max`` differ per ray (some
+    intervals empty, some ending before the ground)."""
+    rng = np.random.default_rng(seed)
+    origins = rng.uniform([0, 0, 0], [GROUND, 3.5, GROUND], size=(n, 3))
+    directions = rng.normal(size=(n, 3))
+    origins[: n // 10, 1] = 0.0
+    diagonal = slice(n // 10, n // 5)
+    along = rng.uniform(0, GROUND, n // 5 - n // 10)
+    origins[diagonal] = np.column_stack([along, np.full_like(along, 2.0), along])
+    directions[diagonal] = [0.0, -1.0, 0.0]
+    origins[n // 5: n // 5 + 4] = [[0, 1, 0], [GROUND, 1, 0], [GROUND, 1, GROUND], [0, 1, GROUND]]
+    directions[n // 5: n // 5 + 4] = [0.0, -1.0, 0.0]
+    t_min = rng.choice([0.0, 0.0, 0.0, 0.5, 2.0], n)
+    t_max = np.where(rng.random(n) < 0.1, rng.uniform(0, 1.5, n), np.inf)
+    return origins, directions, t_min, t_max
+
+
+def test_the_ground_is_large_and_no_triangle_of_a_scan_is(bunny):
+    forest = ra.load_scene("forest-small-chair")
+    large = ra.build(forest, "kdtree")._large_primitives
+    assert sorted(large.prims) == [0, 1]
+    assert (forest.vertices[forest.faces[large.prims]][..., 1] == 0).all()
+    np.testing.assert_array_equal(large.geom, forest.vertices[forest.faces[large.prims]].reshape(-1, 9))
+    b = bunny.bounds()
+    assert len(large_primitives(bunny, b.scene_lo, b.scene_hi).prims) == 0
+
+
+def test_at_most_the_largest_few_are_taken():
+    rng = np.random.default_rng(1)
+    n = MAX_LARGE + 5
+    sizes = rng.permutation(np.linspace(1.0, 2.0, n))
+    corners = np.zeros((n, 3, 3))
+    corners[:, 1, 0] = sizes
+    corners[:, 2, 2] = sizes
+    mesh = ra.TriangleMesh(corners.reshape(-1, 3), np.arange(3 * n).reshape(-1, 3))
+    large = large_primitives(mesh, np.zeros(3), np.array([2.0, 1e-9, 2.0]))
+    np.testing.assert_array_equal(large.prims, np.argsort(-sizes)[:MAX_LARGE])
+    sphere_box = np.array([10.0, 10.0, 10.0])
+    spheres = ra.Spheres([[1, 1, 1], [5, 5, 5], [9, 9, 9]], [0.5, 4.0, np.sqrt(1.01 * LARGE_SHARE * 600 / (4 * np.pi))])
+    assert list(large_primitives(spheres, np.zeros(3), sphere_box).prims) == [1, 2]
+
+
+@pytest.mark.parametrize("method", SETTLING)
+def test_settled_any_hit_queries_agree_with_brute_force(method):
+    scene = ground_and_clutter()
+    reference, accel = ra.build(scene, "none"), ra.build(scene, method)
+    origins, directions, t_min, t_max = rays_meeting_the_ground(3000)
+    expected = reference.occluded(origins, directions, t_min, t_max)
+    prepared = accel._prepare_rays(origins, directions, t_min, t_max)
+    assert len(unsettled_rays(accel._large_primitives, scene.kind, prepared, hit_flags(expected.copy())).origins) < len(origins)
+    for rays in ((origins, directions), (origins.astype(np.float32), directions.astype(np.float32))):
+        np.testing.assert_array_equal(accel.occluded(*rays, t_min, t_max), reference.occluded(*rays, t_min, t_max))
+    np.testing.assert_array_equal(accel.occluded(origins, directions, 0.0, 4.0),
+                                  reference.occluded(origins, directions, 0.0, 4.0))
+    hits = accel.intersect(origins, directions, t_min, t_max, any_hit=True)
+    np.testing.assert_array_equal(hits.prim >= 0, expected)
+    np.testing.assert_array_equal(hits.geom, np.where(expected, 0, -1))
+    hit = np.flatnonzero(expected)
+    assert ((hits.t[hit] >= t_min[hit]) & (hits.t[hit] <= t_max[hit])).all()
+    for prim in np.unique(hits.prim[hit]):
+        rows = hit[hits.prim[hit] == prim]
+        alone = ra.build(ra.TriangleMesh(scene.vertices, scene.faces[[prim]]), "none")
+        found = alone.intersect(origins[rows], directions[rows], t_min[rows], t_max[rows])
+        np.testing.assert_array_equal(found.prim, 0)
+        np.testing.assert_allclose(hits.t[rows], found.t, rtol=1e-12)
+
+
+def test_only_the_rays_no_large_primitive_answers_are_walked():
+    scene = ground_and_clutter()
+    accel = ra.build(scene, "kdtree")
+    origins, directions, t_min, t_max = rays_meeting_the_ground(2000, seed=4)
+    rays = accel._prepare_rays(origins, directions, t_min, t_max)
+    hit = np.zeros(len(origins), dtype=np.bool_)
+    rest = unsettled_rays(accel._large_primitives, scene.kind, rays, hit_flags(hit))
+    ground = ra.build(ra.TriangleMesh(scene.vertices, scene.faces[:2]), "none")
+    np.testing.assert_array_equal(hit, ground.occluded(origins, directions, t_min, t_max))
+    np.testing.assert_array_equal(rest.hit_slot, np.flatnonzero(~hit))
+    np.testing.assert_array_equal(rest.origins, origins[~hit])
+    np.testing.assert_array_equal(rest.t_max, t_max[~hit])
+    assert 0.25 < hit.mean() < 0.75
+    upward = directions.copy()
+    upward[:, 1] = np.abs(upward[:, 1]) + 1.0
+    unmoved = accel._prepare_rays(origins + [0, 0.01, 0], upward, 0.0, np.inf)
+    assert unsettled_rays(accel._large_primitives, scene.kind, unmoved, hit_flags(hit)) is unmoved
+    few = accel._prepare_rays(origins[:SAMPLED_RAYS - 1], directions[:SAMPLED_RAYS - 1], 0.0, np.inf)
+    assert unsettled_rays(accel._large_primitives, scene.kind, few, hit_flags(hit)) is few
+
+
+def test_every_ray_settled_and_unusable_rays_left_to_the_walk():
+    accel = ra.build(ground_and_clutter(), "kdtree")
+    n = 1000
+    origins = np.column_stack([np.linspace(0.1, 9.9, n), np.full(n, 5.0), np.linspace(0.1, 9.9, n)])
+    directions = np.tile([0.0, -1.0, 0.0], (n, 1))
+    assert accel.occluded(origins, directions).all()
+    hits = accel.intersect(origins, directions, any_hit=True)
+    assert (hits.prim >= 0).all()
+    for bad, message in ((np.nan, "NaN"), (0.0, "zero")):
+        broken = directions.copy()
+        broken[n // 2] = bad
+        with pytest.raises(ValueError, match=message):
+            accel.occluded(origins, broken)
+
+
+def test_a_large_sphere_settles_too():
+    rng = np.random.default_rng(2)
+    centres = np.vstack([[[5.0, 5.0, 5.0]], rng.uniform(0, 10, size=(300, 3))])
+    spheres = ra.Spheres(centres, np.r_[4.0, np.full(300, 0.1)])
+    origins = rng.uniform(0, 10, size=(2000, 3))
+    directions = rng.normal(size=(2000, 3))
+    reference = ra.build(spheres, "none")
+    for method in SETTLING:
+        accel = ra.build(spheres, method)
+        assert list(accel._large_primitives.prims) == [0]
+        np.testing.assert_array_equal(accel.occluded(origins, directions, 0.0, 3.0),
+                                      reference.occluded(origins, directions, 0.0, 3.0))
