@@ -141,3 +141,15 @@ def test_a_large_sphere_settles_too():
         assert list(accel._large_primitives.prims) == [0]
         np.testing.assert_array_equal(accel.occluded(origins, directions, 0.0, 3.0),
                                       reference.occluded(origins, directions, 0.0, 3.0))
+
+
+@pytest.mark.parametrize("method", ["kdtree", "grid"])
+def test_the_rays_left_may_be_sorted_before_the_walk(method, monkeypatch):
+    monkeypatch.setattr("rayaccel.structures.base.sorting_pays", lambda n_rays, structure_bytes: True)
+    scene = ground_and_clutter()
+    reference, accel = ra.build(scene, "none"), ra.build(scene, method)
+    origins, directions, t_min, t_max = rays_meeting_the_ground(3000, seed=6)
+    np.testing.assert_array_equal(accel.occluded(origins, directions, t_min, t_max),
+                                  reference.occluded(origins, directions, t_min, t_max))
+    hits = accel.intersect(origins, directions, t_min, t_max, any_hit=True)
+    np.testing.assert_array_equal(hits.prim >= 0, reference.occluded(origins, directions, t_min, t_max))
