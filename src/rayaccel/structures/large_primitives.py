@@ -29,7 +29,7 @@ from .._validate import unusable_ray
 from ..geometry.kinds import TRIANGLE
 from ..geometry.primitive import intersect_prim, ray_setup
 from ..rays import RayBatch, ray_at, ray_limit, result_row
-from .actions import NEAREST, finish_ray_in_mode
+from .actions import NEAREST, finish_ray_in_mode, hit_flags
 
 __all__ = ["LARGE_SHARE", "MAX_LARGE", "SAMPLED_RAYS", "MIN_SETTLED_SHARE", "LargePrimitives", "large_primitives",
            "unsettled_rays"]
@@ -107,16 +107,6 @@ def _first_large_hit(kind, geom, origins, directions, t_min, t_max, i):
     return -1, np.inf, 0.0, 0.0
 
 
-@kernel
-def _sampled_settled(kind, geom, origins, directions, t_min, t_max, stride):
-    """How many of the rays ``0, stride, 2 * stride, ...`` meet a large primitive."""
-    found = 0
-    for i in range(0, origins.shape[0], stride):
-        if _first_large_hit(kind, geom, origins, directions, t_min, t_max, i)[0] >= 0:
-            found += 1
-    return found
-
-
 @chunk_kernel
 def _settle_kernel(ray_first, ray_end, tid, kind, geom, prims, origins, directions, t_min, t_max, hit_slot, action,
                    settled):
@@ -137,9 +127,13 @@ def unsettled_rays(large: LargePrimitives, kind: int, rays: RayBatch, action) ->
     n = len(rays.origins)
     if not len(large.prims) or n < SAMPLED_RAYS:
         return rays
-    stride = n // SAMPLED_RAYS
-    sampled = -(-n // stride)
-    if _sampled_settled(kind, large.geom, *rays[:4], stride) < MIN_SETTLED_SHARE * sampled:
+    sample = RayBatch(*(array[::n // SAMPLED_RAYS].copy() if len(array) == n else array for array in rays[:4]),
+                      rays.hit_slot[:0])
+    sampled = len(sample.origins)
+    settled = np.empty(sampled, dtype=np.bool_)
+    _settle_kernel(0, sampled, 0, kind, large.geom, large.prims, *sample, hit_flags(np.empty(sampled, dtype=np.bool_)),
+                   settled)
+    if np.count_nonzero(settled) < MIN_SETTLED_SHARE * sampled:
         return rays
     settled = np.empty(n, dtype=np.bool_)
     on_threads(lambda first, end, tid: _settle_kernel(first, end, tid, kind, large.geom, large.prims, *rays, action,
