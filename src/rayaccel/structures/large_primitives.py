@@ -4,12 +4,12 @@ A primitive that covers much of the scene (a ground plane, the walls of a room) 
 share of all rays, yet a walk only reaches it after the cells or leaves that lie before it on the
 ray: a kd-tree references it from every leaf it crosses, and a BVH's child boxes around it overlap
 the rest of the scene. Testing those few primitives first and walking only the rays they leave
-unsettled is the any-hit form of Haines & Greenberg's shadow buffer ("The Light Buffer: A Shadow
-Testing Accelerator", IEEE CG&A 6(9), 1986), which tests the occluders most likely to answer
-first; which ones are likely follows from the geometric probability behind the surface area
-heuristic (Goldsmith & Salmon, IEEE CG&A 7(5), 1987; MacDonald & Booth, The Visual Computer 6(3),
-1990): a convex object inside a box is met by the share ``area / box_area`` of the lines through
-the box, counting both faces of a flat one.
+unsettled is the idea of Haines & Greenberg's light buffer ("The Light Buffer: A Shadow-Testing
+Accelerator", IEEE CG&A 6(9), 1986), which tests first the occluders most likely to answer a
+shadow ray, applied to every any-hit query; which ones are likely follows from the geometric
+probability behind the surface area heuristic (Goldsmith & Salmon, IEEE CG&A 7(5), 1987; MacDonald
+& Booth, The Visual Computer 6(3), 1990): a convex object inside a box is met by the share
+``area / box_area`` of the lines through the box, counting both faces of a flat one.
 
 Measured on forest-small-chair (2**19 incoherent rays, the kd-tree, one thread): 43 % of the rays
 meet its ground, and their any-hit walk took 35 % of the batch's time; a batch is settled this way
@@ -41,7 +41,8 @@ MAX_LARGE = 8
 """Most primitives tested first (the largest, when more are large)."""
 
 SAMPLED_RAYS = 256
-"""Rays of a batch, evenly spaced, tested first to decide whether the batch is."""
+"""Fewest rays of a batch, evenly spaced, tested first to decide whether all of them are (a batch of
+fewer rays is left to the walk)."""
 
 MIN_SETTLED_SHARE = 1 / 4
 """Share of the sampled rays that must meet a large primitive for the whole batch to be tested."""
