@@ -2,8 +2,8 @@
 
 A primitive that covers much of the scene (a ground plane, the walls of a room) is met by a large
 share of all rays, yet a walk only reaches it after the cells or leaves that lie before it on the
-ray: a kd-tree references it from every leaf it crosses, and a BVH's child boxes around it overlap
-the rest of the scene. Testing those few primitives first and walking only the rays they leave
+ray: a kd-tree, a grid or an octree references it from every cell it crosses. (A BVH meets it
+near its root and is left as it is.) Testing those few primitives first and walking only the rays they leave
 unsettled is the idea of Haines & Greenberg's light buffer ("The Light Buffer: A Shadow-Testing
 Accelerator", IEEE CG&A 6(9), 1986), which tests first the occluders most likely to answer a
 shadow ray, applied to every any-hit query; which ones are likely follows from the geometric
