@@ -345,11 +345,12 @@ class Accelerator(PointQueries):
         """Trace :meth:`_prepare_rays`'s rays with ``action``; when the walk met rays it could not
         use, the check it skipped runs to raise the error. An any-hit query without counters first
         lets the scene's large primitives answer the rays they can (:mod:`.large_primitives`)."""
+        if not len(rays.origins):
+            return
         walked = rays
-        if any_hit and work is None and len(rays.origins) and self._large_primitives_first:
+        if any_hit and work is None and self._large_primitives_first:
             walked = unsettled_rays(self._large_primitives, self.scene.kind, rays, action)
-        if walked is not None and len(walked.origins) and self._trace(self._ordered(walked, reorder), any_hit,
-                                                                      action, work):
+        if walked is not None and self._trace(self._ordered(walked, reorder), any_hit, action, work):
             check_ray_arrays(rays.origins, rays.directions)
 
     _large_primitives_first = True

@@ -2,9 +2,9 @@
 
 A primitive that covers much of the scene (a ground plane, the walls of a room) is met by a large
 share of all rays, yet a walk only reaches it after the cells or leaves that lie before it on the
-ray: a kd-tree, a grid or an octree references it from every cell it crosses. (A BVH meets it
-near its root and is left as it is.) Testing those few primitives first and walking only the rays they leave
-unsettled is the idea of Haines & Greenberg's light buffer ("The Light Buffer: A Shadow-Testing
+ray: a kd-tree, a grid or an octree references it from every cell it crosses (a BVH meets it
+near its root and is left as it is). Testing those few primitives first and walking only the rays
+they leave unsettled is the idea of Haines & Greenberg's light buffer ("The Light Buffer: A Shadow-Testing
 Accelerator", IEEE CG&A 6(9), 1986), which tests first the occluders most likely to answer a
 shadow ray, applied to every any-hit query; which ones are likely follows from the geometric
 probability behind the surface area heuristic (Goldsmith & Salmon, IEEE CG&A 7(5), 1987; MacDonald
@@ -63,16 +63,12 @@ def large_primitives(scene, scene_lo, scene_hi) -> LargePrimitives:
     extent = np.asarray(scene_hi, dtype=np.float64) - np.asarray(scene_lo, dtype=np.float64)
     box_area = 2.0 * (extent[0] * extent[1] + extent[1] * extent[2] + extent[2] * extent[0])
     if scene.kind == TRIANGLE:
-        large = np.empty(len(scene), dtype=np.bool_)
-        _mark_large_triangles(scene.faces, scene.vertices, LARGE_SHARE * box_area, large)
-        large = np.flatnonzero(large)
-        corners = scene.vertices[scene.faces[large]]
-        surface = np.linalg.norm(np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]), axis=1)
+        surface = np.empty(len(scene))
+        _triangle_surfaces(scene.faces, scene.vertices, surface)
     else:
         surface = 4.0 * np.pi * scene.radii ** 2
-        large = np.flatnonzero(surface >= LARGE_SHARE * box_area)
-        surface = surface[large]
-    prims = large[np.argsort(-surface, kind="stable")][:MAX_LARGE]
+    large = np.flatnonzero(surface >= LARGE_SHARE * box_area)
+    prims = large[np.argsort(-surface[large], kind="stable")][:MAX_LARGE]
     if scene.kind == TRIANGLE:
         geom = np.ascontiguousarray(scene.vertices[scene.faces[prims]].reshape(-1, 9))
     else:
@@ -81,15 +77,15 @@ def large_primitives(scene, scene_lo, scene_hi) -> LargePrimitives:
 
 
 @kernel
-def _mark_large_triangles(faces, vertices, surface, out):
-    """Mark in ``out`` the triangles whose two faces' area, ``|(b - a) x (c - a)|``, is ``surface``
-    or more: one pass without the temporary arrays of numpy's (100 ms on the full dragon)."""
+def _triangle_surfaces(faces, vertices, out):
+    """Each triangle's two faces' area, ``|(b - a) x (c - a)|``, into ``out``: one pass without the
+    temporary arrays of numpy's (100 ms on the full dragon)."""
     for f in range(faces.shape[0]):
         a, b, c = faces[f, 0], faces[f, 1], faces[f, 2]
         ex, ey, ez = vertices[b, 0] - vertices[a, 0], vertices[b, 1] - vertices[a, 1], vertices[b, 2] - vertices[a, 2]
         gx, gy, gz = vertices[c, 0] - vertices[a, 0], vertices[c, 1] - vertices[a, 1], vertices[c, 2] - vertices[a, 2]
         nx, ny, nz = ey * gz - ez * gy, ez * gx - ex * gz, ex * gy - ey * gx
-        out[f] = nx * nx + ny * ny + nz * nz >= surface * surface
+        out[f] = np.sqrt(nx * nx + ny * ny + nz * nz)
 
 
 @inline_kernel
@@ -128,8 +124,7 @@ def unsettled_rays(large: LargePrimitives, kind: int, rays: RayBatch, action) ->
     n = len(rays.origins)
     if not len(large.prims) or n < SAMPLED_RAYS:
         return rays
-    sample = RayBatch(*(array[::n // SAMPLED_RAYS].copy() if len(array) == n else array for array in rays[:4]),
-                      rays.hit_slot[:0])
+    sample = _rays_in_rows(rays, slice(None, None, n // SAMPLED_RAYS), rays.hit_slot[:0])
     sampled = len(sample.origins)
     settled = np.empty(sampled, dtype=np.bool_)
     _settle_kernel(0, sampled, 0, kind, large.geom, large.prims, *sample, hit_flags(np.empty(sampled, dtype=np.bool_)),
@@ -142,6 +137,12 @@ def unsettled_rays(large: LargePrimitives, kind: int, rays: RayBatch, action) ->
     rest = np.flatnonzero(~settled)
     if not len(rest):
         return None
-    rows = rays.hit_slot[rest] if len(rays.hit_slot) else rest
-    return RayBatch(rays.origins[rest], rays.directions[rest], rays.t_min if len(rays.t_min) == 1 else rays.t_min[rest],
-                    rays.t_max if len(rays.t_max) == 1 else rays.t_max[rest], rows)
+    return _rays_in_rows(rays, rest, rays.hit_slot[rest] if len(rays.hit_slot) else rest)
+
+
+def _rays_in_rows(rays: RayBatch, index, hit_slot) -> RayBatch:
+    """The rays ``index`` (a slice or an index array) of ``rays``, in contiguous copies, writing into the
+    rows ``hit_slot``; a limit that ``rays`` shares among all rays stays shared."""
+    n = len(rays.origins)
+    return RayBatch(*(np.ascontiguousarray(array[index]) if len(array) == n else array for array in rays[:4]),
+                    hit_slot)
