@@ -42,6 +42,20 @@ def camera_rays(scene, size):
     return ra.Camera.framing(b.scene_lo, b.scene_hi).rays(size, size)
 
 
+GROUND = 10.0
+
+
+def ground_and_clutter(n_small=400, seed=3):
+    """A square ground :data:`GROUND` wide of two triangles at ``y = 0`` (faces 0 and 1) under small random
+    triangles."""
+    rng = np.random.default_rng(seed)
+    ground = np.array([[0, 0, 0], [GROUND, 0, 0], [GROUND, 0, GROUND], [0, 0, GROUND]], dtype=float)
+    centres = rng.uniform([0, 0.2, 0], [GROUND, 3, GROUND], size=(n_small, 1, 3))
+    small = (centres + rng.normal(scale=0.3, size=(n_small, 3, 3))).reshape(-1, 3)
+    faces = np.vstack([[[0, 1, 2], [0, 2, 3]], 4 + np.arange(3 * n_small).reshape(-1, 3)])
+    return ra.TriangleMesh(np.vstack([ground, small]), faces)
+
+
 def random_rays(scene, n, seed=0):
     """Incoherent rays: origins in a box around the scene, random directions."""
     rng = np.random.default_rng(seed)

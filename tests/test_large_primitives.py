@@ -1,26 +1,26 @@
-"""Any-hit queries settled by the scene's large primitives before the walk, against brute force."""
+"""The scene's large primitives: any-hit queries settled by them before the walk, and the kd-tree built
+without them, every query of which visits them first; against brute force."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
+from conftest import GROUND, camera_rays, ground_and_clutter
+
 import rayaccel as ra
 from rayaccel.structures.actions import hit_flags
+from rayaccel.structures.kdtree import accelerator as kd_accelerator
 from rayaccel.structures.large_primitives import LARGE_SHARE, MAX_LARGE, SAMPLED_RAYS, large_primitives, unsettled_rays
 
-SETTLING = [m for m in ra.methods() if ra.build_class(m)._large_primitives_first]
-GROUND = 10.0
+SETTLING = [m for m in ra.methods() if ra.build_class(m)._large_primitives_first is True] + ["kdtree"]
+KD_IN = {"large_apart": False}
+"""The kd-tree with its large primitives in its leaves, whose any-hit queries test them first."""
 
 
-def ground_and_clutter(n_small=400, seed=3):
-    """A square ground of two triangles at ``y = 0`` (faces 0 and 1) under small random triangles."""
-    rng = np.random.default_rng(seed)
-    ground = np.array([[0, 0, 0], [GROUND, 0, 0], [GROUND, 0, GROUND], [0, 0, GROUND]], dtype=float)
-    centres = rng.uniform([0, 0.2, 0], [GROUND, 3, GROUND], size=(n_small, 1, 3))
-    small = (centres + rng.normal(scale=0.3, size=(n_small, 3, 3))).reshape(-1, 3)
-    faces = np.vstack([[[0, 1, 2], [0, 2, 3]], 4 + np.arange(3 * n_small).reshape(-1, 3)])
-    return ra.TriangleMesh(np.vstack([ground, small]), faces)
+def build(scene, method):
+    """The structure whose any-hit queries settle rays by the large primitives first."""
+    return ra.build(scene, method, **(KD_IN if method == "kdtree" else {}))
 
 
 def rays_meeting_the_ground(n, seed=0):
@@ -70,7 +70,7 @@ def test_at_most_the_largest_few_are_taken():
 @pytest.mark.parametrize("method", SETTLING)
 def test_settled_any_hit_queries_agree_with_brute_force(method):
     scene = ground_and_clutter()
-    reference, accel = ra.build(scene, "none"), ra.build(scene, method)
+    reference, accel = ra.build(scene, "none"), build(scene, method)
     origins, directions, t_min, t_max = rays_meeting_the_ground(3000)
     expected = reference.occluded(origins, directions, t_min, t_max)
     prepared = accel._prepare_rays(origins, directions, t_min, t_max)
@@ -95,7 +95,7 @@ def test_settled_any_hit_queries_agree_with_brute_force(method):
 
 def test_only_the_rays_no_large_primitive_answers_are_walked():
     scene = ground_and_clutter()
-    accel = ra.build(scene, "kdtree")
+    accel = build(scene, "kdtree")
     origins, directions, t_min, t_max = rays_meeting_the_ground(2000, seed=4)
     rays = accel._prepare_rays(origins, directions, t_min, t_max)
     hit = np.zeros(len(origins), dtype=np.bool_)
@@ -115,7 +115,7 @@ def test_only_the_rays_no_large_primitive_answers_are_walked():
 
 
 def test_every_ray_settled_and_unusable_rays_left_to_the_walk():
-    accel = ra.build(ground_and_clutter(), "kdtree")
+    accel = build(ground_and_clutter(), "kdtree")
     n = 1000
     origins = np.column_stack([np.linspace(0.1, 9.9, n), np.full(n, 5.0), np.linspace(0.1, 9.9, n)])
     directions = np.tile([0.0, -1.0, 0.0], (n, 1))
@@ -137,7 +137,7 @@ def test_a_large_sphere_settles_too():
     directions = rng.normal(size=(2000, 3))
     reference = ra.build(spheres, "none")
     for method in SETTLING:
-        accel = ra.build(spheres, method)
+        accel = build(spheres, method)
         assert list(accel._large_primitives.prims) == [0]
         np.testing.assert_array_equal(accel.occluded(origins, directions, 0.0, 3.0),
                                       reference.occluded(origins, directions, 0.0, 3.0))
@@ -147,9 +147,110 @@ def test_a_large_sphere_settles_too():
 def test_the_rays_left_may_be_sorted_before_the_walk(method, monkeypatch):
     monkeypatch.setattr("rayaccel.structures.base.sorting_pays", lambda n_rays, structure_bytes: True)
     scene = ground_and_clutter()
-    reference, accel = ra.build(scene, "none"), ra.build(scene, method)
+    reference, accel = ra.build(scene, "none"), build(scene, method)
     origins, directions, t_min, t_max = rays_meeting_the_ground(3000, seed=6)
     np.testing.assert_array_equal(accel.occluded(origins, directions, t_min, t_max),
                                   reference.occluded(origins, directions, t_min, t_max))
     hits = accel.intersect(origins, directions, t_min, t_max, any_hit=True)
     np.testing.assert_array_equal(hits.prim >= 0, reference.occluded(origins, directions, t_min, t_max))
+
+
+WALKS = ["single", "packets", "interleaved"]
+
+
+def _walk_taken(monkeypatch, walk):
+    """Make the kd-tree trace every closest-hit and any-hit batch with ``walk``."""
+    monkeypatch.setattr(kd_accelerator, "packets_pay", lambda *args: walk == "packets")
+    monkeypatch.setattr(kd_accelerator, "lane_packets_pay", lambda *args: False)
+    monkeypatch.setattr(kd_accelerator, "interleaving_pays", lambda *args, **kwargs: walk == "interleaved")
+
+
+def _ray_sets(scene, reference):
+    """Rays over and onto the ground (per-ray intervals), camera rays, and shadow rays from the camera
+    rays' hits to a light above the scene (partly occluded, ``t_max`` 1): ``(name, o, d, t_min, t_max)``."""
+    origins, directions, t_min, t_max = rays_meeting_the_ground(3000, seed=8)
+    eye, view = camera_rays(scene, 40)
+    hits = reference.intersect(eye, view)
+    hit = np.isfinite(hits.t)
+    points = eye[hit] + hits.t[hit, None] * view[hit]
+    light = np.array([0.3 * GROUND, 4.0 * GROUND, 0.6 * GROUND])
+    return [("ground", origins, directions, t_min, t_max), ("camera", eye, view, 0.0, np.inf),
+            ("shadow", points, light - points, 1e-6, 1.0)]
+
+
+def test_the_kd_tree_is_built_without_the_large_primitives():
+    scene = ground_and_clutter()
+    apart, kept = ra.build(scene, "kdtree"), ra.build(scene, "kdtree", large_apart=False)
+    np.testing.assert_array_equal(apart.apart_prims, [0, 1])
+    assert set(apart.kd.leaf_prims.tolist()) == set(range(2, len(scene)))
+    np.testing.assert_array_equal(apart.refs[apart.apart_first:], [0, 1])
+    assert len(kept.apart_prims) == 0 and np.isin(kept.kd.leaf_prims, [0, 1]).sum() > 2
+    assert not apart._large_primitives_first and kept._large_primitives_first
+    stats, kept_stats = apart.stats(), kept.stats()
+    assert stats["primitives_apart"] == 2 and kept_stats["primitives_apart"] == 0
+    assert stats["references"] < kept_stats["references"] - 2
+    two = ra.TriangleMesh(scene.vertices[:4], scene.faces[:2])
+    assert len(ra.build(two, "kdtree").apart_prims) == 0
+
+
+@pytest.mark.parametrize("walk", WALKS)
+def test_rays_through_the_kd_tree_and_beside_it_agree_with_brute_force(walk, monkeypatch):
+    _walk_taken(monkeypatch, walk)
+    scene = ground_and_clutter()
+    reference, accel = ra.build(scene, "none"), ra.build(scene, "kdtree")
+    for name, origins, directions, t_min, t_max in _ray_sets(scene, reference):
+        expected = reference.intersect(origins, directions, t_min, t_max)
+        for rays in ((origins, directions), (origins.astype(np.float32), directions.astype(np.float32))):
+            want = expected if rays[0] is origins else reference.intersect(*rays, t_min, t_max)
+            got = accel.intersect(*rays, t_min, t_max)
+            np.testing.assert_array_equal(got.prim, want.prim, err_msg=name)
+            np.testing.assert_allclose(got.t, want.t, rtol=1e-12, err_msg=name)
+            np.testing.assert_array_equal(got.geom, want.geom, err_msg=name)
+            np.testing.assert_array_equal(accel.occluded(*rays, t_min, t_max), want.prim >= 0, err_msg=name)
+            np.testing.assert_array_equal(accel.intersect(*rays, t_min, t_max, any_hit=True).prim >= 0,
+                                          want.prim >= 0, err_msg=name)
+        assert np.isin(expected.prim, np.arange(2, len(scene))).any()
+        assert np.isin(expected.prim, [0, 1]).any() == (name != "shadow")
+
+
+def test_counting_listing_and_points_beside_the_kd_tree_agree_with_brute_force():
+    scene = ground_and_clutter()
+    reference, accel = ra.build(scene, "none"), ra.build(scene, "kdtree")
+    kept = ra.build(scene, "kdtree", large_apart=False)
+    for name, origins, directions, t_min, t_max in _ray_sets(scene, reference):
+        np.testing.assert_array_equal(accel.count(origins, directions, t_min, t_max),
+                                      reference.count(origins, directions, t_min, t_max), err_msg=name)
+        for max_hits in (None, 1, 3):
+            got = accel.intersect_all(origins, directions, t_min, t_max, max_hits=max_hits)
+            want = reference.intersect_all(origins, directions, t_min, t_max, max_hits=max_hits)
+            np.testing.assert_array_equal(got.offsets, want.offsets, err_msg=name)
+            np.testing.assert_array_equal(got.prim, want.prim, err_msg=name)
+            np.testing.assert_allclose(got.t, want.t, rtol=1e-12, err_msg=name)
+    rng = np.random.default_rng(5)
+    points = np.vstack([rng.uniform([-1, -1, -1], [GROUND + 1, 4, GROUND + 1], size=(1500, 3)),
+                        [[5.0, 0.0, 5.0], [GROUND, -0.5, GROUND], [3.0, 0.0, 3.0]]])
+    for max_distance in (np.inf, 0.3):
+        got, want = accel.closest_point(points, max_distance), reference.closest_point(points, max_distance)
+        np.testing.assert_array_equal(got.prim, want.prim)
+        np.testing.assert_allclose(got.distance, want.distance, rtol=1e-12)
+    assert set(accel.closest_point(points[[-3, -1]]).prim.tolist()) <= {0, 1}
+    np.testing.assert_allclose(accel.winding_number(points), kept.winding_number(points), atol=1e-9)
+    origins, directions, t_min, t_max = rays_meeting_the_ground(3000, seed=8)
+    counters = accel.intersect(origins, directions, t_min, t_max, counters=True).counters
+    down = np.arange(300, 600)
+    reaching = down[(t_min[down] <= 2.0) & (t_max[down] >= 2.0)]
+    assert len(reaching) > 200 and (counters.tests[reaching] >= 2).all()
+
+
+def test_a_large_sphere_is_kept_apart_too():
+    rng = np.random.default_rng(2)
+    spheres = ra.Spheres(np.vstack([[[5.0, 5.0, 5.0]], rng.uniform(0, 10, size=(300, 3))]),
+                         np.r_[4.0, np.full(300, 0.1)])
+    reference, accel = ra.build(spheres, "none"), ra.build(spheres, "kdtree")
+    np.testing.assert_array_equal(accel.apart_prims, [0])
+    origins, directions = rng.uniform(0, 10, size=(2000, 3)), rng.normal(size=(2000, 3))
+    got, want = accel.intersect(origins, directions, 0.0, 3.0), reference.intersect(origins, directions, 0.0, 3.0)
+    np.testing.assert_array_equal(got.prim, want.prim)
+    np.testing.assert_allclose(got.t, want.t, rtol=1e-12)
+    np.testing.assert_array_equal(accel.count(origins, directions), reference.count(origins, directions))
+    np.testing.assert_array_equal(accel.closest_point(origins).prim, reference.closest_point(origins).prim)

@@ -8,7 +8,7 @@ import pickle
 
 import numpy as np
 import pytest
-from conftest import random_rays
+from conftest import ground_and_clutter, random_rays
 
 import rayaccel as ra
 from rayaccel.persist import CorruptFileError, write_members
@@ -245,3 +245,29 @@ def test_command_line_builds_saves_and_reads(tmp_path, capsys):
     saved.write_bytes(bytes(damaged))
     assert main(["--quiet", "stats", str(saved)]) == 2
     assert "checksum" in capsys.readouterr().err
+
+
+def test_a_kd_tree_keeps_its_primitives_apart_through_a_file(tmp_path):
+    scene = ground_and_clutter()
+    accel = ra.build(scene, "kdtree")
+    origins, directions = random_rays(scene, 1500, seed=5)
+    expected = accel.intersect(origins, directions, counters=True)
+    accel.save(tmp_path / "a.npz")
+    for copy in (ra.load_accelerator(tmp_path / "a.npz"), pickle.loads(pickle.dumps(accel))):
+        np.testing.assert_array_equal(copy.apart_prims, [0, 1])
+        got = copy.intersect(origins, directions, counters=True)
+        _assert_identical(expected, got)
+        np.testing.assert_array_equal(np.column_stack(got.counters), np.column_stack(expected.counters))
+    header, arrays = _read((tmp_path / "a.npz").read_bytes())
+    leaf = int(arrays["kd.leaf_prims"][0])
+    for bad in ([0, 0], [0, leaf], [0, len(scene)], [-1]):
+        _write(tmp_path / "c.npz", header, {**arrays, "kd.apart_prims": np.array(bad, dtype=np.int64)})
+        with pytest.raises(CorruptFileError, match="apart"):
+            ra.load_accelerator(tmp_path / "c.npz")
+    ra.build(scene, "kdtree", large_apart=False).save(tmp_path / "in.npz")
+    header, arrays = _read((tmp_path / "in.npz").read_bytes())
+    del header["state"]["options"]["large_apart"]
+    _write(tmp_path / "older.npz", header, {k: v for k, v in arrays.items() if k != "kd.apart_prims"})
+    older = ra.load_accelerator(tmp_path / "older.npz")
+    assert len(older.apart_prims) == 0
+    _assert_identical(older.intersect(origins, directions), expected)

@@ -4,6 +4,8 @@ Structure: ``build_seconds``, ``nodes``, ``leaves``, ``nonempty_leaves``, ``max_
 ``references`` (primitive references stored; more than the primitives where they straddle
 cells), ``avg_prims_per_nonempty_leaf`` and ``bytes`` (everything a query reads: the
 structure's arrays, the primitive geometry it tests, and the grids' per-thread mailboxes).
+The kd-tree adds ``primitives_apart``, the large primitives it was built without and every
+ray tests first, which its expected tests count once per ray.
 
 Expected figures use the surface area argument (Goldsmith & Salmon 1987;
 MacDonald & Booth 1990): for a random line that hits a convex body A, the

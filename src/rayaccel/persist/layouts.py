@@ -265,7 +265,8 @@ def _load_hybrid(accel, meta, arrays):
 def _save_kdtree(accel):
     kd = accel.kd
     return {}, {"kd.lo": kd.lo, "kd.hi": kd.hi, "kd.node_split": np.ascontiguousarray(kd.node_split),
-                "kd.node_link": np.ascontiguousarray(kd.node_link), "kd.leaf_prims": kd.leaf_prims}
+                "kd.node_link": np.ascontiguousarray(kd.node_link), "kd.leaf_prims": kd.leaf_prims,
+                "kd.apart_prims": accel.apart_prims}
 
 
 def _load_kdtree(accel, meta, arrays):
@@ -284,7 +285,14 @@ def _load_kdtree(accel, meta, arrays):
     parents = np.flatnonzero(inner)
     c.single_parents("kd-tree", np.concatenate((parents, parents)), np.concatenate((below, below + 1)), n)
     c.leaf_ranges("kd-tree", link[~inner, 0], count[~inner], len(leaf_prims))
+    apart = np.zeros(0, dtype=np.int64)
+    if "kd.apart_prims" in arrays:  # files written before the kd-tree kept large primitives apart lack it
+        apart = c.index_range("kd.apart_prims", c.array(arrays, "kd.apart_prims", np.int64, (None,)), 0,
+                              len(accel.scene))
+        c.require(len(np.unique(apart)) == len(apart) and not np.isin(apart, leaf_prims).any(),
+                  "the kd-tree's primitives kept apart must be distinct and absent from its leaves")
     accel.kd = KdTreeArrays.pack(lo, hi, split, link, leaf_prims)
+    accel.apart_prims = apart
     accel._derive_from_tree()
 
 

@@ -19,6 +19,7 @@ from ...stats import box_area, surface_area_stats
 from ..actions import NEAREST
 from ..base import Accelerator, walk_rays
 from ..grid.build_uniform import grid_box
+from ..large_primitives import large_primitives
 from .build_sah_binned import build_binned_top
 from .build_sah_events import build_subtrees
 from .layout import LEAF, MAX_NODES, KdTreeArrays, node_cells
@@ -191,13 +192,20 @@ class KdTree(Accelerator):
         others' steps (:mod:`rayaccel.structures.kdtree.traverse_interleaved`;
         closest and any hit; the counting and collecting queries walk one ray
         at a time). ``False`` walks one ray at a time. Same answers either way.
+    large_apart : bool, default True
+        Build the tree without the scene's few large primitives
+        (:func:`rayaccel.structures.large_primitives.large_primitives`: a ground, the
+        walls of a room), which every ray then tests first, as a leaf before the
+        root (:mod:`rayaccel.structures.kdtree.traverse`). ``False`` keeps them in
+        the leaves they cross. Same answers either way.
     """
 
     method = "kdtree"
     build_bytes_per_primitive = 1200
 
     def __init__(self, scene, *, traversal_cost=1.0, intersection_cost=1.33, empty_bonus=0.2, leaf_size=12,
-                 max_depth=None, bins=64, exact_below=4096, threads=None, packets=True, interleave=True):
+                 max_depth=None, bins=64, exact_below=4096, threads=None, packets=True, interleave=True,
+                 large_apart=True):
         n = len(scene)
         if n > _MAX_PRIMS:
             raise ValueError(f"the kd-tree holds at most {_MAX_PRIMS:,} primitives, got {n:,}")
@@ -215,9 +223,10 @@ class KdTree(Accelerator):
         threads = thread_count() if threads is None else check_number("threads", threads, integer=True, minimum=1,
                                                                        inclusive=True)
         super().__init__(scene, {**options, "packets": check_flag("packets", packets),
-                                 "interleave": check_flag("interleave", interleave)})
+                                 "interleave": check_flag("interleave", interleave),
+                                 "large_apart": check_flag("large_apart", large_apart)})
         start = time.perf_counter()
-        self.kd = self._build(scene, threads, **options)
+        self.kd, self.apart_prims = self._build(scene, threads, large_apart, **options)
         self.build_seconds = time.perf_counter() - start
         self._derive_from_tree()
 
@@ -233,25 +242,57 @@ class KdTree(Accelerator):
         rays 0.99-1.06, camera rays 0.96-1.09 (one thread, separate processes, two runs each,
         medians of 5 rounds, 2026-11-27). Where the tree fits the caches they gain nothing: a
         float32 copy of forest-small-chair, incoherent rays 0.92-1.07; dragon-48k, 0.95-1.07
-        for 202.6 bytes a triangle instead of 114.4, over the limit."""
-        self.geometry = self.scene.gather(self.kd.leaf_prims, indexed=not self._rows_fit())
+        for 202.6 bytes a triangle instead of 114.4, over the limit. The walks read the tree's
+        references followed by the primitives kept apart (``refs``, from ``apart_first`` on, in the
+        box ``apart_box``; :mod:`.traverse`)."""
+        self.apart_first = len(self.kd.leaf_prims)
+        self.apart_box = self._box_of(self.apart_prims)
+        self.refs = np.concatenate((self.kd.leaf_prims, self.apart_prims.astype(np.int32)))
+        self.geometry = self.scene.gather(self.refs, indexed=not self._rows_fit())
         self.max_depth = _tree_depth(self.kd)
 
-    def _build(self, scene, threads, traversal_cost, intersection_cost, empty_bonus, leaf_size, max_depth, bins,
-               exact_below):
+    def _box_of(self, prims) -> np.ndarray:
+        """(2, 3) lo and hi of the box around the primitives ``prims``, padded as the tree's own box
+        (:func:`..grid.build_uniform.grid_box`), so that the slab test of a ray that meets one of
+        them cannot round to a miss; zeros when there are none."""
+        if not len(prims):
+            return np.zeros((2, 3))
+        scene = self.scene
+        if scene.kind == TRIANGLE:
+            corners = scene.vertices[scene.faces[prims]].reshape(-1, 3).astype(np.float64)
+            lo, hi = corners.min(axis=0), corners.max(axis=0)
+        else:
+            radius = scene.radii[prims, None]
+            lo, hi = (scene.centers[prims] - radius).min(axis=0), (scene.centers[prims] + radius).max(axis=0)
+        return np.array(grid_box(lo, hi))
+
+    def _build(self, scene, threads, large_apart, traversal_cost, intersection_cost, empty_bonus, leaf_size,
+               max_depth, bins, exact_below):
+        """``(tree, apart_prims)``: the tree over the scene's primitives but its large ones, when
+        ``large_apart`` and some others remain, and the indices of those (int64)."""
         bounds = self._primitive_bounds()
+        n = len(scene)
+        boxes = np.hstack((bounds.lo, bounds.hi))
+        ids_none = np.zeros(0, dtype=np.int64)
+        apart = large_primitives(scene, bounds.scene_lo, bounds.scene_hi).prims if large_apart else ids_none
+        ids = np.arange(n, dtype=np.int64)
         lo, hi = grid_box(bounds.scene_lo, bounds.scene_hi)
+        if 0 < len(apart) < n:
+            ids = np.delete(ids, apart)
+            boxes = boxes[ids]
+            lo, hi = grid_box(boxes[:, :3].min(axis=0), boxes[:, 3:].max(axis=0))
+        else:
+            apart = apart[:0]
         root_cell = np.concatenate((lo, hi))
         slack = 1e-11 * float(np.abs(root_cell).max() + (hi - lo).max())
-        n = len(scene)
         params = (scene.kind, scene.geometry, traversal_cost, intersection_cost, empty_bonus, leaf_size,
                   max_depth, slack)
         with ThreadPoolExecutor(max(threads, 1)) as pool:
             if exact_below > 0:
-                tree, tasks = self._binned_top(pool, scene, bounds, root_cell, threads, slack, traversal_cost,
+                tree, tasks = self._binned_top(pool, scene, ids, boxes, root_cell, threads, slack, traversal_cost,
                                                intersection_cost, empty_bonus, leaf_size, max_depth, bins, exact_below)
             else:
-                root = [(0, np.arange(n), np.hstack((bounds.lo, bounds.hi)), root_cell, 0)]
+                root = [(0, ids, boxes, root_cell, 0)]
                 defer_below = max(n // (4 * threads), 4096) if threads > 1 and n >= 8192 else 0
                 forest, _, tasks = _exact_batch(root, params, defer_below)
                 tree = forest[:3]
@@ -263,18 +304,18 @@ class KdTree(Accelerator):
         if len(node_split) >= MAX_NODES or len(leaf_prims) >= np.iinfo(np.int32).max:
             raise ValueError(f"the kd-tree outgrew its indices ({MAX_NODES:,} nodes, int32 references); raise "
                              "leaf_size or lower max_depth")
-        return KdTreeArrays.pack(lo, hi, node_split, node_link, leaf_prims)
+        return KdTreeArrays.pack(lo, hi, node_split, node_link, leaf_prims), apart
 
     @staticmethod
-    def _binned_top(pool, scene, bounds, root_cell, threads, slack, traversal_cost, intersection_cost, empty_bonus,
-                    leaf_size, max_depth, bins, exact_below):
-        """The binned upper levels: serially down to nodes of ``n / (4 threads)`` primitives,
-        then those subtrees concurrently. Returns the tree so far and the exact sweep's tasks."""
+    def _binned_top(pool, scene, ids, boxes, root_cell, threads, slack, traversal_cost, intersection_cost,
+                    empty_bonus, leaf_size, max_depth, bins, exact_below):
+        """The binned upper levels over the primitives ``ids`` with their ``boxes``: serially down to
+        nodes of ``n / (4 threads)`` primitives, then those subtrees concurrently. Returns the tree
+        so far and the exact sweep's tasks."""
         top = (scene.kind, scene.geometry, traversal_cost, intersection_cost, empty_bonus, leaf_size, max_depth, slack,
                bins)
-        n = len(scene)
-        *tree, tasks = build_binned_top(np.arange(n, dtype=np.int64), np.hstack((bounds.lo, bounds.hi)), root_cell, 0,
-                                        *top, max(exact_below, n // (4 * threads)))
+        n = len(ids)
+        *tree, tasks = build_binned_top(ids, boxes, root_cell, 0, *top, max(exact_below, n // (4 * threads)))
         upper = [task for task in tasks if len(task[1]) >= exact_below]
         tasks = [task for task in tasks if len(task[1]) < exact_below]
         results = list(pool.map(lambda task: build_binned_top(*task[1:], *top, exact_below), upper))
@@ -291,7 +332,7 @@ class KdTree(Accelerator):
         if scene.kind != TRIANGLE or not scene.float32_exact:
             return False
         k = self.kd
-        rows_bytes = k.nbytes + len(k.leaf_prims) * _ROW_BYTES
+        rows_bytes = k.nbytes + (len(k.leaf_prims) + len(self.apart_prims)) * _ROW_BYTES
         return rows_bytes <= ROWS_BYTES_PER_TRIANGLE * len(scene)
 
     def node_cells(self) -> np.ndarray:
@@ -300,14 +341,21 @@ class KdTree(Accelerator):
         dragon, more than the 55.3 of the tree and its primitives that the queries read."""
         return node_cells(self.kd.lo, self.kd.hi, *self.kd.walk_records)[0]
 
+    @property
+    def _large_primitives_first(self) -> bool:
+        """Whether :meth:`Accelerator._walk_prepared` tests the large primitives first: not when the
+        tree keeps them apart, which every walk visits first (:func:`.traverse.visit_apart`)."""
+        return not len(self.apart_prims)
+
     def _trace(self, batch, any_hit, action, work):
         k = self.kd
         rows = numba.config.NUMBA_NUM_THREADS
         n_rays = len(batch.origins)
         walk = self._nearest_walk(batch, work) if action.mode == NEAREST else kdtree_crossings_kernel
         with self._mailboxes_for(action).lend(n_rays) as (mailbox, base):
-            rays = (k.lo, k.hi, *k.walk_records, k.leaf_prims, self.scene.kind, self.geometry, *batch, any_hit,
-                    mailbox if mailbox.shape[0] else None, base)
+            apart_box = self.apart_box if len(self.apart_prims) else None
+            rays = (k.lo, k.hi, *k.walk_records, self.refs, self.apart_first, apart_box, self.scene.kind,
+                    self.geometry, *batch, any_hit, mailbox if mailbox.shape[0] else None, base)
             if walk is kdtree_packet_kernel:
                 walk_rays(walk, n_rays, *rays, *self._stacks(rows), thread_rows((rows, RAY_ROW)),
                           thread_rows((rows, self.max_depth + 2), np.int64),
@@ -356,15 +404,16 @@ class KdTree(Accelerator):
         k = self.kd
         rows, depth = numba.config.NUMBA_NUM_THREADS, self.max_depth + 2
         pad = 1e-9 * float(np.abs(k.lo).max() + np.abs(k.hi).max() + (k.hi - k.lo).max())
-        kdtree_nearest_kernel(k.lo, k.hi, *k.walk_records, k.leaf_prims, self.scene.kind,
+        kdtree_nearest_kernel(k.lo, k.hi, *k.walk_records, self.refs, self.apart_first, self.scene.kind,
                               self.geometry, pad, points, limit_d2,
                               thread_rows((rows, depth), np.int32), thread_rows((rows, depth)),
                               thread_rows((rows, depth, 6)), out_d2, out_prim)
 
     @property
     def nbytes(self) -> int:
-        """Bytes of the arrays that queries read: the tree and the primitives in reference order."""
-        return int(self.kd.nbytes + layout_nbytes(self.geometry))
+        """Bytes of the arrays that queries read: the tree and the primitives in reference order,
+        those kept apart last."""
+        return int(self.kd.nbytes + 4 * len(self.apart_prims) + layout_nbytes(self.geometry))
 
     def _structure_stats(self) -> dict:
         k = self.kd
@@ -381,6 +430,7 @@ class KdTree(Accelerator):
             "nonempty_leaves": nonempty,
             "max_depth": self.max_depth,
             "references": len(k.leaf_prims),
+            "primitives_apart": len(self.apart_prims),
             "avg_prims_per_nonempty_leaf": float(counts.sum()) / max(nonempty, 1),
             "leaves_at_leaf_size": int(np.count_nonzero(counts[~over_leaf_size])),
             "leaves_at_depth_limit": int(at_depth_limit.sum()),
@@ -390,6 +440,9 @@ class KdTree(Accelerator):
         sa = surface_area_stats(areas[0], step_areas=areas[~leaf], leaf_areas=areas[leaf], leaf_counts=counts,
                                 traversal_cost=self.options["traversal_cost"],
                                 intersection_cost=self.options["intersection_cost"])
+        apart = len(self.apart_prims)
+        sa["expected_intersections"] += apart
+        sa["expected_cost"] += apart * self.options["intersection_cost"]
         result.update(sa)
         result["sah_cost"] = sa["expected_cost"]
         return result

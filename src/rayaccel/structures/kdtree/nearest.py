@@ -36,16 +36,18 @@ def _cell_distance2(cell, p):
 
 
 @parallel_kernel
-def kdtree_nearest_kernel(lo, hi, node_planes, node_links, leaf_prims, kind, geom, pad, points, limit_d2,
+def kdtree_nearest_kernel(lo, hi, node_planes, node_links, leaf_prims, apart_first, kind, geom, pad, points, limit_d2,
                           stack_node, stack_d2, stack_cell, out_d2, out_prim):
     """For each point, the closest primitive within ``sqrt(limit_d2[i])`` (``out_d2``, ``out_prim``);
     ``node_planes`` and ``node_links`` the flat node records (:attr:`.layout.KdTreeArrays.walk_records`),
-    ``geom`` in reference order; stacks as deep as the tree + 2, ``stack_cell`` (threads, depth, 6)."""
+    ``geom`` in reference order; stacks as deep as the tree + 2, ``stack_cell`` (threads, depth, 6).
+    The primitives kept apart from the tree, ``leaf_prims[apart_first:]``, are tested first, so that
+    the nearest of them bounds the walk."""
     for i in prange(points.shape[0]):
         tid = thread_id()
         p = (points[i, 0], points[i, 1], points[i, 2])
-        best_d2 = limit_d2[i]
-        best_prim = -1
+        best_d2, best_prim = nearest_in_refs(kind, geom, leaf_prims, apart_first, leaf_prims.shape[0], True, p[0], p[1],
+                                             p[2], limit_d2[i], -1)
         cell = (lo[0] - pad, lo[1] - pad, lo[2] - pad, hi[0] + pad, hi[1] + pad, hi[2] + pad)
         node = 0
         if _cell_distance2(cell, p) > best_d2:

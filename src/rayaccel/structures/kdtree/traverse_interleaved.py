@@ -53,7 +53,7 @@ from ...geometry.primitive import RAY_FLOATS, RAY_INTS, load_ray, ray_setup, sto
 from ...rays import ray_limit, result_row
 from ..actions import NEAREST, finish_walked_ray, intersect_references
 from .layout import LEAF, leaf_first, node_word
-from .traverse import cross_split, plane_steps, pop_unsettled
+from .traverse import cross_split, plane_steps, pop_unsettled, visit_apart
 
 __all__ = ["SLOTS", "SLOT_INTS", "SLOT_FLOATS", "interleaved_closest_kernel"]
 
@@ -73,20 +73,25 @@ best hit."""
 
 
 @inline_kernel
-def _take_ray(slot, next_ray, ray_end, ints, floats, lo, hi, origins, directions, t_min, t_max, hit_slot, action,
-              work):
-    """Put the next ray of the chunk that meets the root cell into free ``slot``, at the root,
-    finishing the rays before it as misses; returns the index after it. The slot stays free
-    (ray -1) when the chunk has no ray left."""
+def _take_ray(slot, next_ray, ray_end, ints, floats, tid, lo, hi, leaf_prims, apart_first, apart_box, kind, geom,
+              origins, directions, t_min, t_max, hit_slot, any_hit, mailbox, ray_id_base, action, work):
+    """Put the next ray of the chunk that the primitives kept apart leave unsettled and that meets
+    the root cell into free ``slot``, at the root (:func:`.traverse.visit_apart`), finishing the
+    rays before it; returns the index after it. The slot stays free (ray -1) when the chunk has no
+    ray left."""
     while next_ray < ray_end:
         i = next_ray
         next_ray += 1
         ox, oy, oz = origins[i, 0], origins[i, 1], origins[i, 2]
         dx, dy, dz = directions[i, 0], directions[i, 1], directions[i, 2]
-        ray_t_max = ray_limit(t_max, i)
-        t0, t1 = clip_to_box(lo, hi, ox, oy, oz, dx, dy, dz, ray_limit(t_min, i), ray_t_max)
-        if t0 > t1:
-            finish_walked_ray(NEAREST, action, work, result_row(hit_slot, i), np.inf, -1, 0.0, 0.0, 0, 0, 0)
+        row = result_row(hit_slot, i)
+        ray_t_min = ray_limit(t_min, i)
+        best_t, best_prim, best_u, best_v, tests = visit_apart(
+            NEAREST, action, row, apart_first, apart_box, leaf_prims, mailbox, tid, ray_id_base + i, kind, geom, ox, oy,
+            oz, dx, dy, dz, ray_t_min, ray_limit(t_max, i), any_hit)
+        t0, t1 = clip_to_box(lo, hi, ox, oy, oz, dx, dy, dz, ray_t_min, best_t)
+        if t0 > t1 or (any_hit and best_prim >= 0):
+            finish_walked_ray(NEAREST, action, work, row, best_t, best_prim, best_u, best_v, 0, tests, 0)
             continue
         store_ray(ray_setup(ox, oy, oz, dx, dy, dz), floats, ints, slot)
         for axis in range(3):
@@ -95,24 +100,24 @@ def _take_ray(slot, next_ray, ray_end, ints, floats, lo, hi, origins, directions
             floats[slot, _EXIT_STEP + axis], floats[slot, _ENTRY_STEP + axis] = plane_steps(inv_a)
         floats[slot, _T0] = t0
         floats[slot, _T1] = t1
-        floats[slot, _BEST_T] = ray_t_max
-        floats[slot, _BEST_U] = 0.0
-        floats[slot, _BEST_V] = 0.0
+        floats[slot, _BEST_T] = best_t
+        floats[slot, _BEST_U] = best_u
+        floats[slot, _BEST_V] = best_v
         ints[slot, _RAY] = i
         ints[slot, _NODE] = 0
         ints[slot, _SP] = 0
-        ints[slot, _PRIM] = -1
+        ints[slot, _PRIM] = best_prim
         ints[slot, _NODES] = 0
-        ints[slot, _TESTS] = 0
+        ints[slot, _TESTS] = tests
         ints[slot, _LEAVES] = 0
         break
     return next_ray
 
 
 @chunk_kernel
-def interleaved_closest_kernel(ray_first, ray_end, tid, lo, hi, node_planes, node_links, leaf_prims, kind, geom,
-                               origins, directions, t_min, t_max, hit_slot, any_hit, mailbox, ray_id_base, stack_node,
-                               stack_t, slots, slot_ints, slot_floats, action, work):
+def interleaved_closest_kernel(ray_first, ray_end, tid, lo, hi, node_planes, node_links, leaf_prims, apart_first,
+                               apart_box, kind, geom, origins, directions, t_min, t_max, hit_slot, any_hit, mailbox,
+                               ray_id_base, stack_node, stack_t, slots, slot_ints, slot_floats, action, work):
     """Trace rays ``ray_first`` to ``ray_end - 1`` for the closest or any hit (an action of mode
     ``NEAREST``), ``slots`` at a time, their states in row ``tid`` of ``slot_ints`` (threads,
     slots, :data:`SLOT_INTS`) and ``slot_floats`` (threads, slots, :data:`SLOT_FLOATS`) and their
@@ -135,8 +140,9 @@ def interleaved_closest_kernel(ray_first, ray_end, tid, lo, hi, node_planes, nod
             if i < 0:
                 if next_ray == ray_end:
                     continue
-                next_ray = _take_ray(slot, next_ray, ray_end, ints, floats, lo, hi, origins, directions, t_min, t_max,
-                                     hit_slot, action, work)
+                next_ray = _take_ray(slot, next_ray, ray_end, ints, floats, tid, lo, hi, leaf_prims, apart_first,
+                                     apart_box, kind, geom, origins, directions, t_min, t_max, hit_slot, any_hit,
+                                     mailbox, ray_id_base, action, work)
                 i = ints[slot, _RAY]
                 if i < 0:
                     continue

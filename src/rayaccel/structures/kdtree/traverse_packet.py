@@ -44,7 +44,7 @@ from ..actions import NEAREST, finish_ray_in_mode
 from ..base import EXIT_MARGIN, settled_before
 from ..bvh.wide_slab import highest_bit, splat
 from .layout import LEAF, PLANE_FLOOR, PLANE_STEP, leaf_first, node_plane, node_word
-from .traverse import visit_references, walk_singly
+from .traverse import meets_apart, visit_references, walk_singly
 
 __all__ = ["PACKET", "PACKET_ROWS", "kdtree_packet_kernel"]
 
@@ -214,10 +214,40 @@ def _visit_leaf_lanes(action, hit_slot, first, end, leaf_prims, mailbox, tid, ra
     return done
 
 
+@inline_kernel
+def _visit_apart_lanes(action, hit_slot, apart_first, apart_box, leaf_prims, mailbox, tid, ray_id_base, kind, geom,
+                       origins, directions, packet_first, packet_second, n_lanes, lanes, state, best_prim, any_hit):
+    """Visit the primitives kept apart from the tree (:func:`.traverse.visit_apart`) with each of the
+    packet's ``n_lanes`` rays that meets their box, and end each ray's interval in the tree at its
+    hit: returns the lanes of ``lanes`` still to walk, without those whose hit lies before their
+    cell and those an any-hit walk has settled."""
+    meeting = 0
+    for r in range(n_lanes):
+        i = lane_ray(packet_first, r, packet_second)
+        if meets_apart(apart_box, origins[i, 0], origins[i, 1], origins[i, 2], directions[i, 0], directions[i, 1],
+                       directions[i, 2], state[_T_MIN + r], state[_BEST + r]):
+            meeting |= 1 << r
+    if meeting == 0:
+        return lanes
+    done = _visit_leaf_lanes(action, hit_slot, apart_first, leaf_prims.shape[0], leaf_prims, mailbox, tid,
+                             ray_id_base, kind, geom, origins, directions, packet_first, packet_second, meeting, 0,
+                             state, best_prim, any_hit)
+    lanes &= ~done
+    remaining = lanes
+    while remaining != 0:
+        r = highest_bit(remaining)
+        remaining ^= 1 << r
+        state[_T1 + r] = min(state[_T1 + r], state[_BEST + r])
+        if state[_T0 + r] > state[_T1 + r]:
+            lanes ^= 1 << r
+    return lanes
+
+
 @chunk_kernel
-def kdtree_packet_kernel(ray_first, ray_end, tid, lo, hi, node_planes, node_links, leaf_prims, kind, geom, origins,
-                         directions, t_min, t_max, hit_slot, any_hit, mailbox, ray_id_base, stack_node, stack_t,
-                         inv_dir, packet_lanes, packet_t, lanes_state, lanes_prim, row_length, action, work):
+def kdtree_packet_kernel(ray_first, ray_end, tid, lo, hi, node_planes, node_links, leaf_prims, apart_first, apart_box,
+                         kind, geom, origins, directions, t_min, t_max, hit_slot, any_hit, mailbox, ray_id_base,
+                         stack_node, stack_t, inv_dir, packet_lanes, packet_t, lanes_state, lanes_prim, row_length,
+                         action, work):
     """The closest-hit and any-hit walk (an action of mode ``NEAREST``) of rays ``ray_first`` to
     ``ray_end - 1`` in packets of :data:`PACKET` consecutive rays, the last one partial, or, with a
     ``row_length`` other than 0, of the places ``ray_first`` to ``ray_end - 1`` of the tile order of
@@ -240,10 +270,14 @@ def kdtree_packet_kernel(ray_first, ray_end, tid, lo, hi, node_planes, node_link
         if not coherent:
             for run in range(TILE_ROWS):
                 run_first, run_end = run_rays(packet_first, packet_second, n_lanes, TILE_COLUMNS, run)
-                walk_singly(run_first, run_end, tid, lo, hi, node_planes, node_links, leaf_prims, kind, geom,
-                            origins, directions, t_min, t_max, hit_slot, any_hit, mailbox, ray_id_base, stack_node,
-                            stack_t, inv_dir, NEAREST, action, work)
+                walk_singly(run_first, run_end, tid, lo, hi, node_planes, node_links, leaf_prims, apart_first,
+                            apart_box, kind, geom, origins, directions, t_min, t_max, hit_slot, any_hit, mailbox,
+                            ray_id_base, stack_node, stack_t, inv_dir, NEAREST, action, work)
             continue
+        if apart_box is not None:
+            lanes = _visit_apart_lanes(action, hit_slot, apart_first, apart_box, leaf_prims, mailbox, tid,
+                                       ray_id_base, kind, geom, origins, directions, packet_first, packet_second,
+                                       n_lanes, lanes, state, best_prim, any_hit)
         live = lanes
         done = 0
         node = 0 if lanes != 0 else -1
