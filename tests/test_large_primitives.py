@@ -8,6 +8,7 @@ import pytest
 from conftest import GROUND, camera_rays, ground_and_clutter
 
 import rayaccel as ra
+from rayaccel.geometry.gather import is_lanes
 from rayaccel.structures.actions import hit_flags
 from rayaccel.structures.kdtree import accelerator as kd_accelerator
 from rayaccel.structures.large_primitives import LARGE_SHARE, MAX_LARGE, SAMPLED_RAYS, large_primitives, unsettled_rays
@@ -192,11 +193,20 @@ def test_the_kd_tree_is_built_without_the_large_primitives():
     assert len(ra.build(two, "kdtree").apart_prims) == 0
 
 
-@pytest.mark.parametrize("walk", WALKS)
-def test_rays_through_the_kd_tree_and_beside_it_agree_with_brute_force(walk, monkeypatch):
-    _walk_taken(monkeypatch, walk)
+def _scene_in(layout):
+    """The ground and clutter, its triangles in the kd-tree's indexed layout or, rounded to float32, in
+    float32 lanes (:mod:`rayaccel.geometry.gather`)."""
     scene = ground_and_clutter()
+    return scene if layout == "indexed" else ra.TriangleMesh(scene.vertices.astype(np.float32), scene.faces)
+
+
+@pytest.mark.parametrize("layout", ["indexed", "lanes"])
+@pytest.mark.parametrize("walk", WALKS)
+def test_rays_through_the_kd_tree_and_beside_it_agree_with_brute_force(walk, layout, monkeypatch):
+    _walk_taken(monkeypatch, walk)
+    scene = _scene_in(layout)
     reference, accel = ra.build(scene, "none"), ra.build(scene, "kdtree")
+    assert is_lanes(accel.geometry) == (layout == "lanes")
     for name, origins, directions, t_min, t_max in _ray_sets(scene, reference):
         expected = reference.intersect(origins, directions, t_min, t_max)
         for rays in ((origins, directions), (origins.astype(np.float32), directions.astype(np.float32))):
@@ -212,8 +222,9 @@ def test_rays_through_the_kd_tree_and_beside_it_agree_with_brute_force(walk, mon
         assert np.isin(expected.prim, [0, 1]).any() == (name != "shadow")
 
 
-def test_counting_listing_and_points_beside_the_kd_tree_agree_with_brute_force():
-    scene = ground_and_clutter()
+@pytest.mark.parametrize("layout", ["indexed", "lanes"])
+def test_counting_listing_and_points_beside_the_kd_tree_agree_with_brute_force(layout):
+    scene = _scene_in(layout)
     reference, accel = ra.build(scene, "none"), ra.build(scene, "kdtree")
     kept = ra.build(scene, "kdtree", large_apart=False)
     for name, origins, directions, t_min, t_max in _ray_sets(scene, reference):
