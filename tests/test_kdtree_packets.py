@@ -57,6 +57,17 @@ def test_camera_packets_of_every_fill_match_brute_force(small_dragon, extra):
     assert_all_queries_match(brute, [packets], origins, directions)
 
 
+@pytest.mark.parametrize("skip_empty", [True, False])
+def test_packets_entering_empty_leaves_or_not_match_brute_force(small_dragon, every_batch_in_packets, skip_empty):
+    """Packets that skip the empty children of a node (the default) and packets that enter them
+    give the answers of brute force, for camera and random rays alike."""
+    brute = ra.build(small_dragon, "none")
+    packets = ra.build(small_dragon, "kdtree", skip_empty=skip_empty)
+    assert (packets.empty_children is None) != skip_empty
+    for origins, directions in (camera_rays(small_dragon, 40), random_rays(small_dragon, 2000, seed=11)):
+        assert_all_queries_match(brute, [packets], origins, directions)
+
+
 @pytest.mark.parametrize("limits", ["shared", "per ray"])
 def test_wide_camera_packets_with_limits_match_brute_force(small_dragon, limits):
     """A wide camera, so that packets hold rays that miss the tree's box beside rays that hit

@@ -20,6 +20,7 @@ from rayaccel.geometry.gather import layout_rows
 from rayaccel.geometry.overlap import prim_overlaps_box
 from rayaccel.geometry.rounding import float32_below
 from rayaccel.structures.bvh.wide import COUNT, LINK, WIDTH
+from rayaccel.structures.kdtree import accelerator as kdtree_accelerator
 from rayaccel.structures.kdtree.accelerator import ROWS_BYTES_PER_TRIANGLE
 from rayaccel.structures.kdtree.events import END, PLANAR, START, write_node_events
 from rayaccel.structures.kdtree.layout import LEAF
@@ -68,8 +69,8 @@ def test_references_read_their_primitives_in_reference_order(method, options, sc
     scene = request.getfixturevalue(scene_name)
     accel = ra.build(scene, method, **options)
     refs = accel.kd.leaf_prims if method == "kdtree" else accel.hybrid.cell_prims
-    structure = (accel.kd.nbytes if method == "kdtree" else accel.hybrid.nbytes + accel.wide.nbytes
-                 + accel.wide_root.nbytes + accel.mailboxes.nbytes)
+    structure = (accel.kd.nbytes + accel.empty_children.nbytes if method == "kdtree"
+                 else accel.hybrid.nbytes + accel.wide.nbytes + accel.wide_root.nbytes + accel.mailboxes.nbytes)
     rows_fit = (method == "kdtree" and scene_name != "spheres" and scene.float32_exact
                 and structure + 36 * len(refs) <= ROWS_BYTES_PER_TRIANGLE * len(scene))
     assert rows_fit == (scene_name == "small_dragon" and options == {"max_depth": 12})
@@ -277,6 +278,49 @@ def test_kdtree_events_sorted_by_position_then_type(n, seed, grid):
         got = [(x, c & 3, (c >> 2) - 7) for x, c in zip(pos[first:last].tolist(), code[first:last].tolist())]
         assert [(x, kind) for x, kind, _ in got] == [(x, kind) for x, kind, _ in expected]
         assert sorted(got) == expected
+
+
+@pytest.mark.parametrize("interleaved", [False, True])
+@pytest.mark.parametrize("any_hit", [False, True])
+def test_kdtree_walks_neither_enter_nor_push_empty_leaves(closed_sphere_mesh, monkeypatch, interleaved, any_hit):
+    """The flags of empty children name exactly the empty leaves, and no walk counts a visit to one:
+    a ray that tests no primitive has visited no leaf, however many inner nodes it stepped through
+    (rays from the corners of the sphere's box, outwards and inwards, and random ones). With
+    ``skip_empty=False`` the walks enter them and count them, with the same answers."""
+    accel = ra.build(closed_sphere_mesh, "kdtree")
+    kd = accel.kd
+    inner = np.flatnonzero(kd.axis != LEAF)
+    below = kd.node_link[inner, 0]
+    empty_leaf = (kd.axis == LEAF) & (kd.count == 0)
+    assert empty_leaf.any()
+    assert np.array_equal(accel.empty_children[inner], empty_leaf[below] | empty_leaf[below + 1] << 1)
+    assert not accel.empty_children[kd.axis == LEAF].any()
+    if interleaved:
+        monkeypatch.setattr(kdtree_accelerator, "interleaving_pays", lambda *_, **__: True)
+    bounds = closed_sphere_mesh.bounds()
+    centre, half = (bounds.scene_lo + bounds.scene_hi) / 2, (bounds.scene_hi - bounds.scene_lo) / 2
+    corners = centre + 0.98 * half * np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)])
+    rng = np.random.default_rng(3)
+    origins = np.vstack((np.repeat(corners, 64, axis=0), rng.uniform(bounds.scene_lo, bounds.scene_hi, (512, 3))))
+    directions = rng.normal(size=(len(origins), 3))
+    result = accel.intersect(origins, directions, any_hit=any_hit, counters=True)
+    work = result.counters
+    stepped_between_empty_leaves = (work.tests == 0) & (work.nodes > 0)
+    assert stepped_between_empty_leaves.sum() > 10
+    assert (work.leaves[work.tests == 0] == 0).all()
+    reference = ra.build(closed_sphere_mesh, "none").intersect(origins, directions, any_hit=any_hit)
+    if any_hit:
+        np.testing.assert_array_equal(result.prim >= 0, reference.prim >= 0)
+    else:
+        assert_same_hits(reference, result)
+    entering = ra.build(closed_sphere_mesh, "kdtree", skip_empty=False)
+    assert entering.empty_children is None and entering.stats()["bytes"] == accel.stats()["bytes"] - kd.n_nodes
+    walked = entering.intersect(origins, directions, any_hit=any_hit, counters=True)
+    np.testing.assert_array_equal(walked.prim >= 0, result.prim >= 0)
+    if not any_hit:
+        assert_same_hits(reference, walked)
+    assert (walked.counters.leaves[work.tests == 0] > 0).any()
+    assert (walked.counters.nodes >= work.nodes).all()
 
 
 def test_kdtree_does_not_depend_on_threads_or_batches(small_dragon):

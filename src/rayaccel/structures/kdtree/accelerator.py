@@ -198,6 +198,14 @@ class KdTree(Accelerator):
         walls of a room), which every ray then tests first, as a leaf before the
         root (:mod:`rayaccel.structures.kdtree.traverse`). ``False`` keeps them in
         the leaves they cross. Same answers either way.
+    skip_empty : bool, default True
+        Neither enter nor push a child that is an empty leaf: the walks read which
+        children of a node are empty beside its record
+        (:meth:`.layout.KdTreeArrays.empty_children`, a byte a node), so an empty
+        leaf costs neither a step nor a pop, and the work counters count only the
+        leaves a ray tests. ``False`` walks into empty leaves, as the lecture's
+        traversal does, and counts them (``rayaccel experiment kdtree-table``).
+        Same answers either way.
     """
 
     method = "kdtree"
@@ -205,7 +213,7 @@ class KdTree(Accelerator):
 
     def __init__(self, scene, *, traversal_cost=1.0, intersection_cost=1.33, empty_bonus=0.2, leaf_size=12,
                  max_depth=None, bins=64, exact_below=4096, threads=None, packets=True, interleave=True,
-                 large_apart=True):
+                 large_apart=True, skip_empty=True):
         n = len(scene)
         if n > _MAX_PRIMS:
             raise ValueError(f"the kd-tree holds at most {_MAX_PRIMS:,} primitives, got {n:,}")
@@ -224,7 +232,8 @@ class KdTree(Accelerator):
                                                                        inclusive=True)
         super().__init__(scene, {**options, "packets": check_flag("packets", packets),
                                  "interleave": check_flag("interleave", interleave),
-                                 "large_apart": check_flag("large_apart", large_apart)})
+                                 "large_apart": check_flag("large_apart", large_apart),
+                                 "skip_empty": check_flag("skip_empty", skip_empty)})
         start = time.perf_counter()
         self.kd, self.apart_prims = self._build(scene, threads, large_apart, **options)
         self.build_seconds = time.perf_counter() - start
@@ -244,7 +253,9 @@ class KdTree(Accelerator):
         float32 copy of forest-small-chair, incoherent rays 0.92-1.07; dragon-48k, 0.95-1.07
         for 202.6 bytes a triangle instead of 114.4, over the limit. The walks read the tree's
         references followed by the primitives kept apart (``refs``, from ``apart_first`` on, in the
-        box ``apart_box``; :mod:`.traverse`)."""
+        box ``apart_box``; :mod:`.traverse`), and which children of each node are empty leaves
+        (:meth:`.layout.KdTreeArrays.empty_children`)."""
+        self.empty_children = self.kd.empty_children() if self.options.get("skip_empty", True) else None
         self.apart_first = len(self.kd.leaf_prims)
         self.apart_box = self._box_of(self.apart_prims)
         self.refs = np.concatenate((self.kd.leaf_prims, self.apart_prims.astype(np.int32)))
@@ -332,7 +343,7 @@ class KdTree(Accelerator):
         if scene.kind != TRIANGLE or not scene.float32_exact:
             return False
         k = self.kd
-        rows_bytes = k.nbytes + (len(k.leaf_prims) + len(self.apart_prims)) * _ROW_BYTES
+        rows_bytes = k.nbytes + self._flags_nbytes + (len(k.leaf_prims) + len(self.apart_prims)) * _ROW_BYTES
         return rows_bytes <= ROWS_BYTES_PER_TRIANGLE * len(scene)
 
     def node_cells(self) -> np.ndarray:
@@ -354,8 +365,8 @@ class KdTree(Accelerator):
         walk = self._nearest_walk(batch, work) if action.mode == NEAREST else kdtree_crossings_kernel
         with self._mailboxes_for(action).lend(n_rays) as (mailbox, base):
             apart_box = self.apart_box if len(self.apart_prims) else None
-            rays = (k.lo, k.hi, *k.walk_records, self.refs, self.apart_first, apart_box, self.scene.kind,
-                    self.geometry, *batch, any_hit, mailbox if mailbox.shape[0] else None, base)
+            rays = (k.lo, k.hi, *k.walk_records, self.empty_children, self.refs, self.apart_first, apart_box,
+                    self.scene.kind, self.geometry, *batch, any_hit, mailbox if mailbox.shape[0] else None, base)
             if walk is kdtree_packet_kernel:
                 walk_rays(walk, n_rays, *rays, *self._stacks(rows), thread_rows((rows, RAY_ROW)),
                           thread_rows((rows, self.max_depth + 2), np.int64),
@@ -411,9 +422,14 @@ class KdTree(Accelerator):
 
     @property
     def nbytes(self) -> int:
-        """Bytes of the arrays that queries read: the tree and the primitives in reference order,
-        those kept apart last."""
-        return int(self.kd.nbytes + 4 * len(self.apart_prims) + layout_nbytes(self.geometry))
+        """Bytes of the arrays that queries read: the tree with its flags of empty children and the
+        primitives in reference order, those kept apart last."""
+        return int(self.kd.nbytes + self._flags_nbytes + 4 * len(self.apart_prims) + layout_nbytes(self.geometry))
+
+    @property
+    def _flags_nbytes(self) -> int:
+        """Bytes of the flags of empty children (none without ``skip_empty``)."""
+        return 0 if self.empty_children is None else self.empty_children.nbytes
 
     def _structure_stats(self) -> dict:
         k = self.kd

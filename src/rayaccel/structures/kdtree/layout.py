@@ -141,6 +141,16 @@ class KdTreeArrays(NamedTuple):
     def nbytes(self) -> int:
         return int(sum(a.nbytes for a in self))
 
+    def empty_children(self) -> np.ndarray:
+        """(n_nodes,) uint8: for an inner node, bit 0 set when its child below the plane is an empty
+        leaf and bit 1 when the child above is; 0 for a leaf. The walks read it beside the node's
+        record and neither enter an empty child nor push it (:func:`.traverse.is_empty_child`)."""
+        words = self.node_records[:, 1]
+        inner = words & 3 != LEAF
+        below = np.where(inner, words >> 2, 0)
+        flags = (words[below] == LEAF).astype(np.uint8) | (words[below + inner] == LEAF).astype(np.uint8) << 1
+        return np.where(inner, flags, 0).astype(np.uint8)
+
 
 @inline_kernel
 def node_word(words, node):

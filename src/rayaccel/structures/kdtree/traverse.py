@@ -47,7 +47,7 @@ from ..bvh.traverse_wide import visit_leaf
 from .layout import LEAF, PLANE_FLOOR, PLANE_STEP, leaf_first, node_plane, node_word
 
 __all__ = ["RAY_ROW", "kdtree_closest_kernel", "kdtree_crossings_kernel", "walk_singly", "plane_steps", "cross_split",
-           "pop_unsettled", "visit_references", "visit_apart"]
+           "empty_children_of", "is_empty_child", "skips_empty", "pop_unsettled", "visit_references", "visit_apart"]
 
 RAY_ROW = 9
 """Width of a walk's per-thread ``inv_dir`` row: the ray's reciprocal direction, then its exit and
@@ -116,6 +116,28 @@ def cross_split(node_planes, word, node, oa, inv_a, exit_step_a, entry_step_a, t
 
 
 @inline_kernel
+def empty_children_of(empty_children, node):
+    """The flags of ``node``'s empty children (:meth:`.layout.KdTreeArrays.empty_children`), 0 when
+    the walk enters empty leaves (``empty_children`` None, which leaves the read out of the code)."""
+    if empty_children is None:
+        return 0
+    return np.int64(empty_children[node])
+
+
+@inline_kernel
+def is_empty_child(empty, below, child):
+    """Whether ``child`` (``below`` or ``below + 1``) of a node whose flags of empty children are
+    ``empty`` (:func:`empty_children_of`) is an empty leaf."""
+    return (empty >> (child - below)) & 1 != 0
+
+
+@inline_kernel
+def skips_empty(empty, below, pushed):
+    """1 when ``pushed`` is a child to keep on the stack, 0 when it is none (-1) or an empty leaf."""
+    return np.int64(pushed >= 0) * (1 - ((empty >> ((pushed - below) & 1)) & 1))
+
+
+@inline_kernel
 def pop_unsettled(stack_node, stack_t, row, sp, best_prim, best_t, t0, t1):
     """The next cell to visit from the stack of ``row`` (``sp`` entries), skipping those that start
     after the best hit: ``(node, t0, t1, sp)``, ``node = -1`` when none is left. Once the best hit
@@ -174,9 +196,9 @@ def visit_apart(mode, action, row, apart_first, apart_box, leaf_prims, mailbox, 
 
 
 @inline_kernel
-def walk_singly(ray_first, ray_end, tid, lo, hi, node_planes, node_links, leaf_prims, apart_first, apart_box, kind,
-                geom, origins, directions, t_min, t_max, hit_slot, any_hit, mailbox, ray_id_base, stack_node, stack_t,
-                inv_dir, mode, action, work):
+def walk_singly(ray_first, ray_end, tid, lo, hi, node_planes, node_links, empty_children, leaf_prims, apart_first,
+                apart_box, kind, geom, origins, directions, t_min, t_max, hit_slot, any_hit, mailbox, ray_id_base,
+                stack_node, stack_t, inv_dir, mode, action, work):
     """Trace rays ``ray_first`` to ``ray_end - 1`` (one chunk of :func:`rayaccel._jit.on_threads`), their
     stacks in row ``tid``; ``stack_node`` (threads, depth) int32 and ``stack_t`` (threads, depth, 2);
     ``node_planes`` and ``node_links`` are the flat node records (:attr:`.layout.KdTreeArrays.walk_records`);
@@ -212,6 +234,8 @@ def walk_singly(ray_first, ray_end, tid, lo, hi, node_planes, node_links, leaf_p
             word = node_word(node_links, node)
             axis = word & 3
             if axis != LEAF:
+                empty = empty_children_of(empty_children, node)
+                below = word >> 2
                 node, t1, pushed, push_t0, push_t1 = cross_split(node_planes, word, node, origins[i, axis],
                                                                   inv_dir[row_of_thread, axis],
                                                                   inv_dir[row_of_thread, 3 + axis],
@@ -220,36 +244,38 @@ def walk_singly(ray_first, ray_end, tid, lo, hi, node_planes, node_links, leaf_p
                 stack_node[row_of_thread, slot] = pushed
                 stack_t[row_of_thread, slot, 0] = push_t0
                 stack_t[row_of_thread, slot, 1] = push_t1
-                sp += np.int64(pushed >= 0)
-                continue
-            n_leaves += 1
-            first = leaf_first(node_links, node)
-            best_t, best_prim, best_u, best_v, tests = visit_references(
-                mode, action, row, first, first + (word >> 2), leaf_prims, mailbox, tid, ray_id_base + i, kind,
-                geom, ray, ray_t_min, best_t, best_prim, best_u, best_v, any_hit)
-            n_tests += tests
-            if any_hit and best_prim >= 0:
-                break
+                sp += skips_empty(empty, below, pushed)
+                if not is_empty_child(empty, below, node):
+                    continue
+            else:
+                n_leaves += 1
+                first = leaf_first(node_links, node)
+                best_t, best_prim, best_u, best_v, tests = visit_references(
+                    mode, action, row, first, first + (word >> 2), leaf_prims, mailbox, tid, ray_id_base + i, kind,
+                    geom, ray, ray_t_min, best_t, best_prim, best_u, best_v, any_hit)
+                n_tests += tests
+                if any_hit and best_prim >= 0:
+                    break
             node, t0, t1, sp = pop_unsettled(stack_node, stack_t, tid, sp, best_prim, best_t, t0, t1)
         finish_walked_ray(mode, action, work, row, best_t, best_prim, best_u, best_v, n_nodes, n_tests, n_leaves)
 
 
 @chunk_kernel
-def kdtree_closest_kernel(ray_first, ray_end, tid, lo, hi, node_planes, node_links, leaf_prims, apart_first,
-                          apart_box, kind, geom, origins, directions, t_min, t_max, hit_slot, any_hit, mailbox,
-                          ray_id_base, stack_node, stack_t, inv_dir, action, work):
+def kdtree_closest_kernel(ray_first, ray_end, tid, lo, hi, node_planes, node_links, empty_children, leaf_prims,
+                          apart_first, apart_box, kind, geom, origins, directions, t_min, t_max, hit_slot, any_hit,
+                          mailbox, ray_id_base, stack_node, stack_t, inv_dir, action, work):
     """The closest-hit and any-hit walk (an action of mode ``NEAREST``), the other modes' code
     pruned before it is compiled (:func:`..actions.visit_prim_in_mode`)."""
-    walk_singly(ray_first, ray_end, tid, lo, hi, node_planes, node_links, leaf_prims, apart_first, apart_box, kind,
-                geom, origins, directions, t_min, t_max, hit_slot, any_hit, mailbox, ray_id_base, stack_node, stack_t,
-                inv_dir, NEAREST, action, work)
+    walk_singly(ray_first, ray_end, tid, lo, hi, node_planes, node_links, empty_children, leaf_prims, apart_first,
+                apart_box, kind, geom, origins, directions, t_min, t_max, hit_slot, any_hit, mailbox, ray_id_base,
+                stack_node, stack_t, inv_dir, NEAREST, action, work)
 
 
 @chunk_kernel
-def kdtree_crossings_kernel(ray_first, ray_end, tid, lo, hi, node_planes, node_links, leaf_prims, apart_first,
-                            apart_box, kind, geom, origins, directions, t_min, t_max, hit_slot, any_hit, mailbox,
-                            ray_id_base, stack_node, stack_t, inv_dir, action, work):
+def kdtree_crossings_kernel(ray_first, ray_end, tid, lo, hi, node_planes, node_links, empty_children, leaf_prims,
+                            apart_first, apart_box, kind, geom, origins, directions, t_min, t_max, hit_slot, any_hit,
+                            mailbox, ray_id_base, stack_node, stack_t, inv_dir, action, work):
     """The walk for the other actions (counting, listing, winding), compiled at their first use."""
-    walk_singly(ray_first, ray_end, tid, lo, hi, node_planes, node_links, leaf_prims, apart_first, apart_box, kind,
-                geom, origins, directions, t_min, t_max, hit_slot, any_hit, mailbox, ray_id_base, stack_node, stack_t,
-                inv_dir, action.mode, action, work)
+    walk_singly(ray_first, ray_end, tid, lo, hi, node_planes, node_links, empty_children, leaf_prims, apart_first,
+                apart_box, kind, geom, origins, directions, t_min, t_max, hit_slot, any_hit, mailbox, ray_id_base,
+                stack_node, stack_t, inv_dir, action.mode, action, work)

@@ -115,9 +115,9 @@ def _take_ray(slot, next_ray, ray_end, ints, floats, tid, lo, hi, leaf_prims, ap
 
 
 @chunk_kernel
-def interleaved_closest_kernel(ray_first, ray_end, tid, lo, hi, node_planes, node_links, leaf_prims, apart_first,
-                               apart_box, kind, geom, origins, directions, t_min, t_max, hit_slot, any_hit, mailbox,
-                               ray_id_base, stack_node, stack_t, slots, slot_ints, slot_floats, action, work):
+def interleaved_closest_kernel(ray_first, ray_end, tid, lo, hi, node_planes, node_links, empty_children, leaf_prims,
+                               apart_first, apart_box, kind, geom, origins, directions, t_min, t_max, hit_slot, any_hit,
+                               mailbox, ray_id_base, stack_node, stack_t, slots, slot_ints, slot_floats, action, work):
     """Trace rays ``ray_first`` to ``ray_end - 1`` for the closest or any hit (an action of mode
     ``NEAREST``), ``slots`` at a time, their states in row ``tid`` of ``slot_ints`` (threads,
     slots, :data:`SLOT_INTS`) and ``slot_floats`` (threads, slots, :data:`SLOT_FLOATS`) and their
@@ -170,7 +170,7 @@ def interleaved_closest_kernel(ray_first, ray_end, tid, lo, hi, node_planes, nod
                 floats[slot, _T1] = t1
                 continue
             first = leaf_first(node_links, node)
-            if count_work:
+            if count_work and (word >> 2 != 0 or empty_children is None):
                 ints[slot, _NODES] += 1
                 ints[slot, _LEAVES] += 1
             best_t, best_prim, best_u, best_v, tests, _ = intersect_references(

@@ -44,7 +44,7 @@ from ..actions import NEAREST, finish_ray_in_mode
 from ..base import EXIT_MARGIN, settled_before
 from ..bvh.wide_slab import highest_bit, splat
 from .layout import LEAF, PLANE_FLOOR, PLANE_STEP, leaf_first, node_plane, node_word
-from .traverse import meets_apart, visit_references, walk_singly
+from .traverse import empty_children_of, is_empty_child, meets_apart, visit_references, walk_singly
 
 __all__ = ["PACKET", "PACKET_ROWS", "kdtree_packet_kernel"]
 
@@ -244,10 +244,10 @@ def _visit_apart_lanes(action, hit_slot, apart_first, apart_box, leaf_prims, mai
 
 
 @chunk_kernel
-def kdtree_packet_kernel(ray_first, ray_end, tid, lo, hi, node_planes, node_links, leaf_prims, apart_first, apart_box,
-                         kind, geom, origins, directions, t_min, t_max, hit_slot, any_hit, mailbox, ray_id_base,
-                         stack_node, stack_t, inv_dir, packet_lanes, packet_t, lanes_state, lanes_prim, row_length,
-                         action, work):
+def kdtree_packet_kernel(ray_first, ray_end, tid, lo, hi, node_planes, node_links, empty_children, leaf_prims,
+                         apart_first, apart_box, kind, geom, origins, directions, t_min, t_max, hit_slot, any_hit,
+                         mailbox, ray_id_base, stack_node, stack_t, inv_dir, packet_lanes, packet_t, lanes_state,
+                         lanes_prim, row_length, action, work):
     """The closest-hit and any-hit walk (an action of mode ``NEAREST``) of rays ``ray_first`` to
     ``ray_end - 1`` in packets of :data:`PACKET` consecutive rays, the last one partial, or, with a
     ``row_length`` other than 0, of the places ``ray_first`` to ``ray_end - 1`` of the tile order of
@@ -270,9 +270,9 @@ def kdtree_packet_kernel(ray_first, ray_end, tid, lo, hi, node_planes, node_link
         if not coherent:
             for run in range(TILE_ROWS):
                 run_first, run_end = run_rays(packet_first, packet_second, n_lanes, TILE_COLUMNS, run)
-                walk_singly(run_first, run_end, tid, lo, hi, node_planes, node_links, leaf_prims, apart_first,
-                            apart_box, kind, geom, origins, directions, t_min, t_max, hit_slot, any_hit, mailbox,
-                            ray_id_base, stack_node, stack_t, inv_dir, NEAREST, action, work)
+                walk_singly(run_first, run_end, tid, lo, hi, node_planes, node_links, empty_children, leaf_prims,
+                            apart_first, apart_box, kind, geom, origins, directions, t_min, t_max, hit_slot, any_hit,
+                            mailbox, ray_id_base, stack_node, stack_t, inv_dir, NEAREST, action, work)
             continue
         if apart_box is not None:
             lanes = _visit_apart_lanes(action, hit_slot, apart_first, apart_box, leaf_prims, mailbox, tid,
@@ -287,15 +287,17 @@ def kdtree_packet_kernel(ray_first, ray_end, tid, lo, hi, node_planes, node_link
             axis = word & 3
             if axis != LEAF:
                 below = word >> 2
+                empty = empty_children_of(empty_children, node)
                 near = below if (positive >> axis) & 1 else below + 1
+                far = 2 * below + 1 - near
                 sides = _split_lanes(state, axis, node_plane(node_planes, node), packet_t[tid, sp])
                 near_lanes = sides & lanes
                 far_lanes = (sides >> PACKET) & lanes
-                if far_lanes != 0:
-                    stack_node[tid, sp] = 2 * below + 1 - near
+                if far_lanes != 0 and not is_empty_child(empty, below, far):
+                    stack_node[tid, sp] = far
                     packet_lanes[tid, sp] = far_lanes
                     sp += 1
-                if near_lanes != 0:
+                if near_lanes != 0 and not is_empty_child(empty, below, near):
                     node = near
                     lanes = near_lanes
                     continue
