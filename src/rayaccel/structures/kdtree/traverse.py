@@ -23,6 +23,14 @@ child to the stack whether it is pushed or not and moves the stack pointer by
 and a leaf's primitives are read from a copy of the geometry in reference order
 (``geom`` row ``k`` is primitive ``leaf_prims[k]``), next to each other.
 
+A child that is an empty leaf is neither entered nor pushed: ``empty_children`` holds a byte a
+node saying which of its two children are empty leaves (:meth:`.layout.KdTreeArrays.empty_children`),
+read beside the node's record, so that the walk goes on with the other child or pops at once
+(:func:`is_empty_child`; ``None`` without the ``skip_empty`` option enters them and leaves the read
+out of the compiled walk). A forest-small-chair incoherent ray met 2.04 empty leaves of its 3.61:
+skipping them ran the forest's incoherent rays 1.00-1.08 times as fast, camera rays 1.03, shadow rays
+1.05-1.10 (one thread, medians of 7, processes alternating with the code before, 2026-12-04).
+
 The references from ``apart_first`` to the end of ``leaf_prims`` are the primitives the tree was
 built without (the scene's few large ones, see the ``large_apart`` option of
 :class:`.accelerator.KdTree`): a leaf that every ray visits before the root, whose hit bounds the
