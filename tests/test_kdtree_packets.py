@@ -19,7 +19,7 @@ import rayaccel as ra
 from rayaccel.ray_order import MIN_PACKET_RAYS, lane_packets_pay, packets_pay
 from rayaccel.rays import prepare_rays
 from rayaccel.structures.kdtree import accelerator
-from rayaccel.structures.kdtree.layout import plane_bracket
+from rayaccel.structures.kdtree.layout import CHILD_SHIFT, plane_bracket
 from rayaccel.structures.kdtree.traverse import cross_split, plane_steps
 from rayaccel.structures.kdtree.traverse_packet import PACKET, PACKET_ROWS, _split_lanes
 
@@ -63,7 +63,7 @@ def test_packets_entering_empty_leaves_or_not_match_brute_force(small_dragon, ev
     give the answers of brute force, for camera and random rays alike."""
     brute = ra.build(small_dragon, "none")
     packets = ra.build(small_dragon, "kdtree", skip_empty=skip_empty)
-    assert (packets.empty_children is None) != skip_empty
+    assert packets.options["skip_empty"] == skip_empty
     for origins, directions in (camera_rays(small_dragon, 40), random_rays(small_dragon, 2000, seed=11)):
         assert_all_queries_match(brute, [packets], origins, directions)
 
@@ -181,7 +181,7 @@ def test_vector_split_is_the_single_walks_split_in_each_lane():
         state[6 * PACKET:7 * PACKET], state[7 * PACKET:8 * PACKET] = t0, t1
         slot = np.zeros(2 * PACKET)
         alone = np.zeros((PACKET, 5))
-        node_records = np.array([[0, 1 << 2 | axis]], dtype=np.int32)
+        node_records = np.array([[0, 1 << CHILD_SHIFT | axis]], dtype=np.int32)
         node_records.view(np.float32)[0, 0] = split
         after = state.copy()
         sides = _split_by_lane_and_alone(after, axis, node_records, slot, alone)

@@ -69,8 +69,8 @@ def test_references_read_their_primitives_in_reference_order(method, options, sc
     scene = request.getfixturevalue(scene_name)
     accel = ra.build(scene, method, **options)
     refs = accel.kd.leaf_prims if method == "kdtree" else accel.hybrid.cell_prims
-    structure = (accel.kd.nbytes + accel.empty_children.nbytes if method == "kdtree"
-                 else accel.hybrid.nbytes + accel.wide.nbytes + accel.wide_root.nbytes + accel.mailboxes.nbytes)
+    structure = (accel.kd.nbytes if method == "kdtree" else accel.hybrid.nbytes + accel.wide.nbytes
+                 + accel.wide_root.nbytes + accel.mailboxes.nbytes)
     rows_fit = (method == "kdtree" and scene_name != "spheres" and scene.float32_exact
                 and structure + 36 * len(refs) <= ROWS_BYTES_PER_TRIANGLE * len(scene))
     assert rows_fit == (scene_name == "small_dragon" and options == {"max_depth": 12})
@@ -283,18 +283,20 @@ def test_kdtree_events_sorted_by_position_then_type(n, seed, grid):
 @pytest.mark.parametrize("interleaved", [False, True])
 @pytest.mark.parametrize("any_hit", [False, True])
 def test_kdtree_walks_neither_enter_nor_push_empty_leaves(closed_sphere_mesh, monkeypatch, interleaved, any_hit):
-    """The flags of empty children name exactly the empty leaves, and no walk counts a visit to one:
-    a ray that tests no primitive has visited no leaf, however many inner nodes it stepped through
-    (rays from the corners of the sphere's box, outwards and inwards, and random ones). With
-    ``skip_empty=False`` the walks enter them and count them, with the same answers."""
+    """The flags of empty children in the nodes' words name exactly the empty leaves, and no walk
+    counts a visit to one: a ray that tests no primitive has visited no leaf, however many inner
+    nodes it stepped through (rays from the corners of the sphere's box, outwards and inwards, and
+    random ones). With ``skip_empty=False`` the walks enter them and count them, with the same
+    answers."""
     accel = ra.build(closed_sphere_mesh, "kdtree")
     kd = accel.kd
     inner = np.flatnonzero(kd.axis != LEAF)
     below = kd.node_link[inner, 0]
     empty_leaf = (kd.axis == LEAF) & (kd.count == 0)
     assert empty_leaf.any()
-    assert np.array_equal(accel.empty_children[inner], empty_leaf[below] | empty_leaf[below + 1] << 1)
-    assert not accel.empty_children[kd.axis == LEAF].any()
+    flags = kd.empty_children()
+    assert np.array_equal(flags[inner], empty_leaf[below] | empty_leaf[below + 1] << 1)
+    assert not flags[kd.axis == LEAF].any()
     if interleaved:
         monkeypatch.setattr(kdtree_accelerator, "interleaving_pays", lambda *_, **__: True)
     bounds = closed_sphere_mesh.bounds()
@@ -314,7 +316,7 @@ def test_kdtree_walks_neither_enter_nor_push_empty_leaves(closed_sphere_mesh, mo
     else:
         assert_same_hits(reference, result)
     entering = ra.build(closed_sphere_mesh, "kdtree", skip_empty=False)
-    assert entering.empty_children is None and entering.stats()["bytes"] == accel.stats()["bytes"] - kd.n_nodes
+    assert np.array_equal(entering.kd.node_records, kd.node_records)
     walked = entering.intersect(origins, directions, any_hit=any_hit, counters=True)
     np.testing.assert_array_equal(walked.prim >= 0, result.prim >= 0)
     if not any_hit:

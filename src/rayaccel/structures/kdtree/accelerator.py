@@ -22,7 +22,7 @@ from ..grid.build_uniform import grid_box
 from ..large_primitives import large_primitives
 from .build_sah_binned import build_binned_top
 from .build_sah_events import build_subtrees
-from .layout import LEAF, MAX_NODES, KdTreeArrays, node_cells
+from .layout import CHILD_SHIFT, LEAF, MAX_NODES, KdTreeArrays, node_cells
 from .nearest import kdtree_nearest_kernel
 from .traverse import RAY_ROW, kdtree_closest_kernel, kdtree_crossings_kernel
 from .traverse_interleaved import SLOT_FLOATS, SLOT_INTS, SLOTS, interleaved_closest_kernel
@@ -116,7 +116,7 @@ def _tree_depth(kd: KdTreeArrays) -> int:
     """The depth of the deepest node, found level by level (children sit side by side), without
     the cells :func:`.layout.node_cells` would compute beside the depths."""
     inner = kd.axis != LEAF
-    links = kd.node_records[:, 1] >> 2
+    links = kd.node_records[:, 1] >> CHILD_SHIFT
     level = np.zeros(1, dtype=np.int64)
     depth = 0
     while True:
@@ -200,9 +200,8 @@ class KdTree(Accelerator):
         the leaves they cross. Same answers either way.
     skip_empty : bool, default True
         Neither enter nor push a child that is an empty leaf: the walks read which
-        children of a node are empty beside its record
-        (:meth:`.layout.KdTreeArrays.empty_children`, a byte a node), so an empty
-        leaf costs neither a step nor a pop, and the work counters count only the
+        children of a node are empty in its record (:func:`.layout.empty_flags`),
+        so an empty leaf costs neither a step nor a pop, and the work counters count only the
         leaves a ray tests. ``False`` walks into empty leaves, as the lecture's
         traversal does, and counts them (``rayaccel experiment kdtree-table``).
         Same answers either way.
@@ -253,9 +252,7 @@ class KdTree(Accelerator):
         float32 copy of forest-small-chair, incoherent rays 0.92-1.07; dragon-48k, 0.95-1.07
         for 202.6 bytes a triangle instead of 114.4, over the limit. The walks read the tree's
         references followed by the primitives kept apart (``refs``, from ``apart_first`` on, in the
-        box ``apart_box``; :mod:`.traverse`), and which children of each node are empty leaves
-        (:meth:`.layout.KdTreeArrays.empty_children`)."""
-        self.empty_children = self.kd.empty_children() if self.options.get("skip_empty", True) else None
+        box ``apart_box``; :mod:`.traverse`)."""
         self.apart_first = len(self.kd.leaf_prims)
         self.apart_box = self._box_of(self.apart_prims)
         self.refs = np.concatenate((self.kd.leaf_prims, self.apart_prims.astype(np.int32)))
@@ -343,7 +340,7 @@ class KdTree(Accelerator):
         if scene.kind != TRIANGLE or not scene.float32_exact:
             return False
         k = self.kd
-        rows_bytes = k.nbytes + self._flags_nbytes + (len(k.leaf_prims) + len(self.apart_prims)) * _ROW_BYTES
+        rows_bytes = k.nbytes + (len(k.leaf_prims) + len(self.apart_prims)) * _ROW_BYTES
         return rows_bytes <= ROWS_BYTES_PER_TRIANGLE * len(scene)
 
     def node_cells(self) -> np.ndarray:
@@ -365,7 +362,8 @@ class KdTree(Accelerator):
         walk = self._nearest_walk(batch, work) if action.mode == NEAREST else kdtree_crossings_kernel
         with self._mailboxes_for(action).lend(n_rays) as (mailbox, base):
             apart_box = self.apart_box if len(self.apart_prims) else None
-            rays = (k.lo, k.hi, *k.walk_records, self.empty_children, self.refs, self.apart_first, apart_box,
+            skip_empty = True if self.options.get("skip_empty", True) else None
+            rays = (k.lo, k.hi, *k.walk_records, skip_empty, self.refs, self.apart_first, apart_box,
                     self.scene.kind, self.geometry, *batch, any_hit, mailbox if mailbox.shape[0] else None, base)
             if walk is kdtree_packet_kernel:
                 walk_rays(walk, n_rays, *rays, *self._stacks(rows), thread_rows((rows, RAY_ROW)),
@@ -422,14 +420,9 @@ class KdTree(Accelerator):
 
     @property
     def nbytes(self) -> int:
-        """Bytes of the arrays that queries read: the tree with its flags of empty children and the
-        primitives in reference order, those kept apart last."""
-        return int(self.kd.nbytes + self._flags_nbytes + 4 * len(self.apart_prims) + layout_nbytes(self.geometry))
-
-    @property
-    def _flags_nbytes(self) -> int:
-        """Bytes of the flags of empty children (none without ``skip_empty``)."""
-        return 0 if self.empty_children is None else self.empty_children.nbytes
+        """Bytes of the arrays that queries read: the tree and the primitives in reference order,
+        those kept apart last."""
+        return int(self.kd.nbytes + 4 * len(self.apart_prims) + layout_nbytes(self.geometry))
 
     def _structure_stats(self) -> dict:
         k = self.kd

@@ -9,10 +9,13 @@ Rendering*, 3rd ed., section 4.4.1):
 * column 0 is, for an inner node, its split plane rounded down to a float32
   number (the records seen as float32), and for a leaf the offset of its first
   reference in ``leaf_prims``;
-* column 1 is ``child << 2 | axis`` for an inner node, ``child`` the index of
-  its child below the plane (the child above is ``child + 1``) and ``axis``
-  0, 1 or 2, and ``count << 2 | 3`` for a leaf holding ``count`` references
-  (possibly none: empty leaves are what makes kd-trees skip empty space).
+* column 1 is ``child << 4 | empty << 2 | axis`` for an inner node, ``child``
+  the index of its child below the plane (the child above is ``child + 1``),
+  ``empty`` bit 0 set when the child below is an empty leaf and bit 1 when the
+  child above is (:func:`empty_flags`), and ``axis`` 0, 1 or 2; and
+  ``count << 2 | 3`` for a leaf holding ``count`` references (possibly none:
+  empty leaves are what makes kd-trees skip empty space, and the flags let the
+  walks skip them without reading their records).
 
 The builders place planes in float64, at the primitives' (clipped) bounds:
 rounding a plane there would cut the primitives that end or start on it (on
@@ -52,12 +55,15 @@ from ..._jit import inline_kernel, kernel, unsigned
 from ...geometry.rounding import float32_below
 from ..build_arrays import reserve_rows
 
-__all__ = ["LEAF", "MAX_NODES", "PLANE_STEP", "PLANE_FLOOR", "KdTreeArrays", "node_word", "node_plane", "leaf_first",
+__all__ = ["LEAF", "MAX_NODES", "CHILD_SHIFT", "PLANE_STEP", "PLANE_FLOOR", "KdTreeArrays", "node_word", "node_plane",
+           "node_child", "empty_flags", "leaf_first",
            "plane_bracket", "node_cells", "add_children", "copy_cell", "split_cell"]
 
 LEAF = 3
-MAX_NODES = 1 << 29
-"""Node indices and leaf counts are stored shifted left by two bits in an int32."""
+MAX_NODES = 1 << 27
+"""Node indices are stored shifted left by :data:`CHILD_SHIFT` bits in an int32 (leaf counts by two)."""
+CHILD_SHIFT = 4
+"""Bits below an inner node's child index in its word: the axis and the flags of empty children."""
 PLANE_STEP = 2.0 ** -23
 """A float32 number's next one up lies at most ``|q| PLANE_STEP`` above it, when ``|q|`` is at least
 :data:`PLANE_FLOOR`, and ``PLANE_FLOOR * PLANE_STEP`` (the smallest float32 step) above it otherwise."""
@@ -69,7 +75,7 @@ class KdTreeArrays(NamedTuple):
 
     lo: np.ndarray            # (3,) float64, root cell
     hi: np.ndarray            # (3,) float64
-    node_records: np.ndarray  # (n_nodes, 2) int32: float32 plane or first reference, then link << 2 | axis
+    node_records: np.ndarray  # (n_nodes, 2) int32: float32 plane or first reference, then the word
     leaf_prims: np.ndarray    # (n_references,) int32
 
     @classmethod
@@ -88,7 +94,10 @@ class KdTreeArrays(NamedTuple):
         planes[~leaf] = rounded
         node_records = np.empty((len(node_link), 2), dtype=np.int32)
         node_records[:, 0] = np.where(leaf, node_link[:, 0], planes.view(np.int32))
-        node_records[:, 1] = np.where(leaf, node_link[:, 1], node_link[:, 0] << 2 | node_link[:, 1])
+        below = np.where(leaf, 0, node_link[:, 0])
+        empty = (node_link[below, 1] == LEAF).astype(np.int32) | (node_link[below + ~leaf, 1] == LEAF) << 1
+        inner_word = node_link[:, 0] << CHILD_SHIFT | empty << 2 | node_link[:, 1]
+        node_records[:, 1] = np.where(leaf, node_link[:, 1], inner_word)
         return cls(lo, hi, node_records, leaf_prims)
 
     @property
@@ -123,7 +132,8 @@ class KdTreeArrays(NamedTuple):
         first reference and ``count << 2 | LEAF`` (the form :meth:`pack` takes)."""
         leaf = self.leaf
         word = self.node_records[:, 1]
-        return np.stack((np.where(leaf, self.node_records[:, 0], word >> 2), np.where(leaf, word, word & 3)), axis=1)
+        return np.stack((np.where(leaf, self.node_records[:, 0], word >> CHILD_SHIFT), np.where(leaf, word, word & 3)),
+                        axis=1)
 
     @property
     def n_nodes(self) -> int:
@@ -142,14 +152,9 @@ class KdTreeArrays(NamedTuple):
         return int(sum(a.nbytes for a in self))
 
     def empty_children(self) -> np.ndarray:
-        """(n_nodes,) uint8: for an inner node, bit 0 set when its child below the plane is an empty
-        leaf and bit 1 when the child above is; 0 for a leaf. The walks read it beside the node's
-        record and neither enter an empty child nor push it (:func:`.traverse.is_empty_child`)."""
+        """(n_nodes,) each inner node's flags of empty children (:func:`empty_flags`), 0 for a leaf."""
         words = self.node_records[:, 1]
-        inner = words & 3 != LEAF
-        below = np.where(inner, words >> 2, 0)
-        flags = (words[below] == LEAF).astype(np.uint8) | (words[below + inner] == LEAF).astype(np.uint8) << 1
-        return np.where(inner, flags, 0).astype(np.uint8)
+        return np.where(words & 3 == LEAF, 0, words >> 2 & 3)
 
 
 @inline_kernel
@@ -162,6 +167,19 @@ def node_word(words, node):
 def node_plane(planes, node):
     """Inner node ``node``'s float32 plane in the flat records, as a float64."""
     return np.float64(planes[unsigned(2 * node)])
+
+
+@inline_kernel
+def node_child(word):
+    """The child below the plane of the inner node whose word is ``word`` (the child above is the next)."""
+    return word >> CHILD_SHIFT
+
+
+@inline_kernel
+def empty_flags(word):
+    """The flags of an inner node's empty children in its word: bit 0 set when the child below the
+    plane is an empty leaf, bit 1 when the child above is."""
+    return (word >> 2) & 3
 
 
 @inline_kernel
@@ -194,7 +212,7 @@ def node_cells(lo, hi, planes, words):
         axis = word & 3
         if axis == LEAF:
             continue
-        below = word >> 2
+        below = node_child(word)
         plane_below, plane_above = plane_bracket(node_plane(planes, node))
         cells[below] = cells[node]
         cells[below + 1] = cells[node]

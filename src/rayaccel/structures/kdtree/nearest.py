@@ -18,7 +18,7 @@ from numba import prange
 
 from ..._jit import inline_kernel, parallel_kernel, thread_id
 from ..point_actions import box_distance2, nearest_in_refs
-from .layout import LEAF, leaf_first, node_plane, node_word, plane_bracket
+from .layout import LEAF, leaf_first, node_child, node_plane, node_word, plane_bracket
 
 __all__ = ["kdtree_nearest_kernel"]
 
@@ -63,7 +63,7 @@ def kdtree_nearest_kernel(lo, hi, node_planes, node_links, leaf_prims, apart_fir
                 node = -1
             else:
                 plane_below, plane_above = plane_bracket(node_plane(node_planes, node))
-                below = link >> 2
+                below = node_child(link)
                 if p[axis] < plane_below:
                     node, far = below, below + 1
                     far_cell = _with(cell, axis, plane_below - pad)

@@ -23,13 +23,15 @@ child to the stack whether it is pushed or not and moves the stack pointer by
 and a leaf's primitives are read from a copy of the geometry in reference order
 (``geom`` row ``k`` is primitive ``leaf_prims[k]``), next to each other.
 
-A child that is an empty leaf is neither entered nor pushed: ``empty_children`` holds a byte a
-node saying which of its two children are empty leaves (:meth:`.layout.KdTreeArrays.empty_children`),
-read beside the node's record, so that the walk goes on with the other child or pops at once
-(:func:`is_empty_child`; ``None`` without the ``skip_empty`` option enters them and leaves the read
-out of the compiled walk). A forest-small-chair incoherent ray met 2.04 empty leaves of its 3.61:
-skipping them ran the forest's incoherent rays 1.00-1.08 times as fast, camera rays 1.03, shadow rays
-1.05-1.10 (one thread, medians of 7, processes alternating with the code before, 2026-12-04).
+A child that is an empty leaf is neither entered nor pushed: a node's word says which of its two
+children are empty leaves (:func:`.layout.empty_flags`), so that the walk goes on with the other
+child or pops at once without reading the empty one's record (:func:`is_empty_child`;
+``skip_empty`` None, without the option of that name, enters them and leaves the test out of the
+compiled walk). A forest-small-chair incoherent ray met 2.04 empty leaves of its 3.61:
+skipping them ran the forest's incoherent rays 1.03-1.04 times as fast, camera rays 0.98-1.01,
+shadow rays 1.01-1.07, the full dragon's shadow rays 1.08-1.11 (one thread, medians of 7, processes
+alternating with the code before, 2026-12-04). The rays-in-flight walk enters them (see
+:mod:`.traverse_interleaved`).
 
 The references from ``apart_first`` to the end of ``leaf_prims`` are the primitives the tree was
 built without (the scene's few large ones, see the ``large_apart`` option of
@@ -52,7 +54,7 @@ from ...rays import ray_limit, result_row
 from ..actions import NEAREST, finish_walked_ray, intersect_references
 from ..base import EXIT_MARGIN, settled_before
 from ..bvh.traverse_wide import visit_leaf
-from .layout import LEAF, PLANE_FLOOR, PLANE_STEP, leaf_first, node_plane, node_word
+from .layout import LEAF, PLANE_FLOOR, PLANE_STEP, empty_flags, leaf_first, node_child, node_plane, node_word
 
 __all__ = ["RAY_ROW", "kdtree_closest_kernel", "kdtree_crossings_kernel", "walk_singly", "plane_steps", "cross_split",
            "empty_children_of", "is_empty_child", "skips_empty", "pop_unsettled", "visit_references", "visit_apart"]
@@ -106,7 +108,7 @@ def cross_split(node_planes, word, node, oa, inv_a, exit_step_a, entry_step_a, t
     (interleaved walk) 1.00-1.07, camera and shadow rays (packets) 0.95-1.01 (one thread, 2**19
     rays, 9-11 rounds alternating with the code before in one process, both orders)."""
     plane = node_plane(node_planes, node)
-    below = word >> 2
+    below = node_child(word)
     t_plane = (plane - oa) * inv_a
     bracket = abs(plane) + PLANE_FLOOR
     t_exit = t_plane + bracket * exit_step_a
@@ -124,12 +126,12 @@ def cross_split(node_planes, word, node, oa, inv_a, exit_step_a, entry_step_a, t
 
 
 @inline_kernel
-def empty_children_of(empty_children, node):
-    """The flags of ``node``'s empty children (:meth:`.layout.KdTreeArrays.empty_children`), 0 when
-    the walk enters empty leaves (``empty_children`` None, which leaves the read out of the code)."""
-    if empty_children is None:
+def empty_children_of(skip_empty, word):
+    """The flags of empty children in an inner node's ``word`` (:func:`.layout.empty_flags`), 0 when
+    the walk enters empty leaves (``skip_empty`` None, which leaves the test out of the code)."""
+    if skip_empty is None:
         return 0
-    return np.int64(empty_children[node])
+    return empty_flags(word)
 
 
 @inline_kernel
@@ -204,12 +206,13 @@ def visit_apart(mode, action, row, apart_first, apart_box, leaf_prims, mailbox, 
 
 
 @inline_kernel
-def walk_singly(ray_first, ray_end, tid, lo, hi, node_planes, node_links, empty_children, leaf_prims, apart_first,
+def walk_singly(ray_first, ray_end, tid, lo, hi, node_planes, node_links, skip_empty, leaf_prims, apart_first,
                 apart_box, kind, geom, origins, directions, t_min, t_max, hit_slot, any_hit, mailbox, ray_id_base,
                 stack_node, stack_t, inv_dir, mode, action, work):
     """Trace rays ``ray_first`` to ``ray_end - 1`` (one chunk of :func:`rayaccel._jit.on_threads`), their
     stacks in row ``tid``; ``stack_node`` (threads, depth) int32 and ``stack_t`` (threads, depth, 2);
-    ``node_planes`` and ``node_links`` are the flat node records (:attr:`.layout.KdTreeArrays.walk_records`);
+    ``node_planes`` and ``node_links`` are the flat node records (:attr:`.layout.KdTreeArrays.walk_records`),
+    ``skip_empty`` True or None (see above);
     ``mailbox`` as in the uniform grid (empty for the closest hit, which needs none). A step
     reads the ray on the node's axis from memory (``inv_dir`` (threads, :data:`RAY_ROW`) holds
     the ray's reciprocal direction, then its exit and entry steps, see :func:`cross_split`):
@@ -242,8 +245,8 @@ def walk_singly(ray_first, ray_end, tid, lo, hi, node_planes, node_links, empty_
             word = node_word(node_links, node)
             axis = word & 3
             if axis != LEAF:
-                empty = empty_children_of(empty_children, node)
-                below = word >> 2
+                empty = empty_children_of(skip_empty, word)
+                below = node_child(word)
                 node, t1, pushed, push_t0, push_t1 = cross_split(node_planes, word, node, origins[i, axis],
                                                                   inv_dir[row_of_thread, axis],
                                                                   inv_dir[row_of_thread, 3 + axis],
@@ -269,21 +272,21 @@ def walk_singly(ray_first, ray_end, tid, lo, hi, node_planes, node_links, empty_
 
 
 @chunk_kernel
-def kdtree_closest_kernel(ray_first, ray_end, tid, lo, hi, node_planes, node_links, empty_children, leaf_prims,
+def kdtree_closest_kernel(ray_first, ray_end, tid, lo, hi, node_planes, node_links, skip_empty, leaf_prims,
                           apart_first, apart_box, kind, geom, origins, directions, t_min, t_max, hit_slot, any_hit,
                           mailbox, ray_id_base, stack_node, stack_t, inv_dir, action, work):
     """The closest-hit and any-hit walk (an action of mode ``NEAREST``), the other modes' code
     pruned before it is compiled (:func:`..actions.visit_prim_in_mode`)."""
-    walk_singly(ray_first, ray_end, tid, lo, hi, node_planes, node_links, empty_children, leaf_prims, apart_first,
+    walk_singly(ray_first, ray_end, tid, lo, hi, node_planes, node_links, skip_empty, leaf_prims, apart_first,
                 apart_box, kind, geom, origins, directions, t_min, t_max, hit_slot, any_hit, mailbox, ray_id_base,
                 stack_node, stack_t, inv_dir, NEAREST, action, work)
 
 
 @chunk_kernel
-def kdtree_crossings_kernel(ray_first, ray_end, tid, lo, hi, node_planes, node_links, empty_children, leaf_prims,
+def kdtree_crossings_kernel(ray_first, ray_end, tid, lo, hi, node_planes, node_links, skip_empty, leaf_prims,
                             apart_first, apart_box, kind, geom, origins, directions, t_min, t_max, hit_slot, any_hit,
                             mailbox, ray_id_base, stack_node, stack_t, inv_dir, action, work):
     """The walk for the other actions (counting, listing, winding), compiled at their first use."""
-    walk_singly(ray_first, ray_end, tid, lo, hi, node_planes, node_links, empty_children, leaf_prims, apart_first,
+    walk_singly(ray_first, ray_end, tid, lo, hi, node_planes, node_links, skip_empty, leaf_prims, apart_first,
                 apart_box, kind, geom, origins, directions, t_min, t_max, hit_slot, any_hit, mailbox, ray_id_base,
                 stack_node, stack_t, inv_dir, action.mode, action, work)

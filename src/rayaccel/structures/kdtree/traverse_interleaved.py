@@ -43,11 +43,12 @@ a query asks for them: kept always, two threads ran at 0.92-0.94 / 0.92-0.99
 of the speed in two runs, one thread at 1.01 / 1.03.
 
 This walk enters empty leaves, which the other walks skip (see :mod:`.traverse`), and leaves them
-out of the counters, so that the counters match theirs (``empty_children`` None, the ``skip_empty``
-option off, counts them as those walks then do). Here the flags, a byte a node in an array of their
-own, cost a load out of the caches at each step: read there, prefetched with the record or not,
-they slowed the full dragon's incoherent rays to 0.76-0.97 of the speed (one thread, 2^19 rays,
-2026-12-04).
+out of the counters, so that the counters match theirs (``skip_empty`` None, the option of that name
+off, counts them as those walks then do). Skipping them here, a turn that chooses one popping at
+once, ran the full dragon's incoherent rays at 0.85-0.90 of the speed with the flags in the node's
+word, and at 0.76-0.97 with them in a byte array of their own, prefetched with the record or not
+(one thread, 2^19 rays, 2026-12-04): fewer turns a ray leave less time for the prefetches of the
+other rays in flight to arrive, which is the likely reason, not measured.
 """
 
 from __future__ import annotations
@@ -122,7 +123,7 @@ def _take_ray(slot, next_ray, ray_end, ints, floats, tid, lo, hi, leaf_prims, ap
 
 
 @chunk_kernel
-def interleaved_closest_kernel(ray_first, ray_end, tid, lo, hi, node_planes, node_links, empty_children, leaf_prims,
+def interleaved_closest_kernel(ray_first, ray_end, tid, lo, hi, node_planes, node_links, skip_empty, leaf_prims,
                                apart_first, apart_box, kind, geom, origins, directions, t_min, t_max, hit_slot, any_hit,
                                mailbox, ray_id_base, stack_node, stack_t, slots, slot_ints, slot_floats, action, work):
     """Trace rays ``ray_first`` to ``ray_end - 1`` for the closest or any hit (an action of mode
@@ -177,7 +178,7 @@ def interleaved_closest_kernel(ray_first, ray_end, tid, lo, hi, node_planes, nod
                 floats[slot, _T1] = t1
                 continue
             first = leaf_first(node_links, node)
-            if count_work and (word >> 2 != 0 or empty_children is None):
+            if count_work and (word >> 2 != 0 or skip_empty is None):
                 ints[slot, _NODES] += 1
                 ints[slot, _LEAVES] += 1
             best_t, best_prim, best_u, best_v, tests, _ = intersect_references(

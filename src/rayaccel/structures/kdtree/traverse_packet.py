@@ -43,7 +43,7 @@ from ...rays import ray_limit, result_row
 from ..actions import NEAREST, finish_ray_in_mode
 from ..base import EXIT_MARGIN, settled_before
 from ..bvh.wide_slab import highest_bit, splat
-from .layout import LEAF, PLANE_FLOOR, PLANE_STEP, leaf_first, node_plane, node_word
+from .layout import LEAF, PLANE_FLOOR, PLANE_STEP, leaf_first, node_child, node_plane, node_word
 from .traverse import empty_children_of, is_empty_child, meets_apart, visit_references, walk_singly
 
 __all__ = ["PACKET", "PACKET_ROWS", "kdtree_packet_kernel"]
@@ -244,7 +244,7 @@ def _visit_apart_lanes(action, hit_slot, apart_first, apart_box, leaf_prims, mai
 
 
 @chunk_kernel
-def kdtree_packet_kernel(ray_first, ray_end, tid, lo, hi, node_planes, node_links, empty_children, leaf_prims,
+def kdtree_packet_kernel(ray_first, ray_end, tid, lo, hi, node_planes, node_links, skip_empty, leaf_prims,
                          apart_first, apart_box, kind, geom, origins, directions, t_min, t_max, hit_slot, any_hit,
                          mailbox, ray_id_base, stack_node, stack_t, inv_dir, packet_lanes, packet_t, lanes_state,
                          lanes_prim, row_length, action, work):
@@ -270,7 +270,7 @@ def kdtree_packet_kernel(ray_first, ray_end, tid, lo, hi, node_planes, node_link
         if not coherent:
             for run in range(TILE_ROWS):
                 run_first, run_end = run_rays(packet_first, packet_second, n_lanes, TILE_COLUMNS, run)
-                walk_singly(run_first, run_end, tid, lo, hi, node_planes, node_links, empty_children, leaf_prims,
+                walk_singly(run_first, run_end, tid, lo, hi, node_planes, node_links, skip_empty, leaf_prims,
                             apart_first, apart_box, kind, geom, origins, directions, t_min, t_max, hit_slot, any_hit,
                             mailbox, ray_id_base, stack_node, stack_t, inv_dir, NEAREST, action, work)
             continue
@@ -286,8 +286,8 @@ def kdtree_packet_kernel(ray_first, ray_end, tid, lo, hi, node_planes, node_link
             word = node_word(node_links, node)
             axis = word & 3
             if axis != LEAF:
-                below = word >> 2
-                empty = empty_children_of(empty_children, node)
+                below = node_child(word)
+                empty = empty_children_of(skip_empty, word)
                 near = below if (positive >> axis) & 1 else below + 1
                 far = 2 * below + 1 - near
                 sides = _split_lanes(state, axis, node_plane(node_planes, node), packet_t[tid, sp])
