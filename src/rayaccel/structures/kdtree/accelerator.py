@@ -199,12 +199,13 @@ class KdTree(Accelerator):
         root (:mod:`rayaccel.structures.kdtree.traverse`). ``False`` keeps them in
         the leaves they cross. Same answers either way.
     skip_empty : bool, default True
-        Neither enter nor push a child that is an empty leaf: the walks read which
-        children of a node are empty in its record (:func:`.layout.empty_flags`),
-        so an empty leaf costs neither a step nor a pop, and the work counters count only the
-        leaves a ray tests. ``False`` walks into empty leaves, as the lecture's
-        traversal does, and counts them (``rayaccel experiment kdtree-table``).
-        Same answers either way.
+        Neither enter nor push a child that is an empty leaf: the single walk and
+        the packets read which children of a node are empty in its record
+        (:func:`.layout.empty_flags`), so an empty leaf costs them neither a step
+        nor a pop (the rays-in-flight walk enters it, uncounted), and the work
+        counters count only the leaves a ray tests. ``False`` walks into empty
+        leaves, as the lecture's traversal does, and counts them (``rayaccel
+        experiment kdtree-table``). Same answers either way.
     """
 
     method = "kdtree"

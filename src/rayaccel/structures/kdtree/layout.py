@@ -94,10 +94,12 @@ class KdTreeArrays(NamedTuple):
         planes[~leaf] = rounded
         node_records = np.empty((len(node_link), 2), dtype=np.int32)
         node_records[:, 0] = np.where(leaf, node_link[:, 0], planes.view(np.int32))
-        below = np.where(leaf, 0, node_link[:, 0])
-        empty = (node_link[below, 1] == LEAF).astype(np.int32) | (node_link[below + ~leaf, 1] == LEAF) << 1
-        inner_word = node_link[:, 0] << CHILD_SHIFT | empty << 2 | node_link[:, 1]
-        node_records[:, 1] = np.where(leaf, node_link[:, 1], inner_word)
+        inner = np.flatnonzero(~leaf)
+        below = node_link[inner, 0]
+        empty_leaf = (node_link[:, 1] == LEAF).astype(np.int32)
+        node_records[:, 1] = node_link[:, 1]
+        node_records[inner, 1] = (below << CHILD_SHIFT | (empty_leaf[below] | empty_leaf[below + 1] << 1) << 2
+                                  | node_link[inner, 1])
         return cls(lo, hi, node_records, leaf_prims)
 
     @property
@@ -154,7 +156,7 @@ class KdTreeArrays(NamedTuple):
     def empty_children(self) -> np.ndarray:
         """(n_nodes,) each inner node's flags of empty children (:func:`empty_flags`), 0 for a leaf."""
         words = self.node_records[:, 1]
-        return np.where(words & 3 == LEAF, 0, words >> 2 & 3)
+        return np.where(words & 3 == LEAF, 0, empty_flags.py_func(words))
 
 
 @inline_kernel

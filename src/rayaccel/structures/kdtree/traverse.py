@@ -137,14 +137,16 @@ def empty_children_of(skip_empty, word):
 @inline_kernel
 def is_empty_child(empty, below, child):
     """Whether ``child`` (``below`` or ``below + 1``) of a node whose flags of empty children are
-    ``empty`` (:func:`empty_children_of`) is an empty leaf."""
-    return (empty >> (child - below)) & 1 != 0
+    ``empty`` (:func:`empty_children_of`) is an empty leaf. The shift is masked to the pair, so that
+    ``child`` -1 (no child pushed) reads one of the two flags rather than shifting by a negative
+    count; :func:`skips_empty` tests for it first."""
+    return (empty >> ((child - below) & 1)) & 1 != 0
 
 
 @inline_kernel
 def skips_empty(empty, below, pushed):
     """1 when ``pushed`` is a child to keep on the stack, 0 when it is none (-1) or an empty leaf."""
-    return np.int64(pushed >= 0) * (1 - ((empty >> ((pushed - below) & 1)) & 1))
+    return np.int64(pushed >= 0) * np.int64(not is_empty_child(empty, below, pushed))
 
 
 @inline_kernel
