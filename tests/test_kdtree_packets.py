@@ -147,7 +147,7 @@ def _split_by_lane_and_alone(state, axis, node_records, slot, alone):
         o, inv = state[axis * PACKET + r], state[(3 + axis) * PACKET + r]
         t0, t1 = state[6 * PACKET + r], state[7 * PACKET + r]
         exit_step, entry_step = plane_steps(inv)
-        nxt, near_t1, pushed, push_t0, push_t1 = cross_split(planes, words[1], 0, o, inv, exit_step, entry_step, t0, t1)
+        nxt, near_t1, pushed, push_t0, push_t1 = cross_split(planes[0], words[1], o, inv, exit_step, entry_step, t0, t1)
         alone[r, 0], alone[r, 1], alone[r, 2], alone[r, 3], alone[r, 4] = nxt, near_t1, pushed, push_t0, push_t1
     return _split_lanes(state, axis, np.float64(planes[0]), slot)
 

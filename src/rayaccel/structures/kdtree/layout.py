@@ -167,8 +167,9 @@ def node_word(words, node):
 
 @inline_kernel
 def node_plane(planes, node):
-    """Inner node ``node``'s float32 plane in the flat records, as a float64."""
-    return np.float64(planes[unsigned(2 * node)])
+    """Inner node ``node``'s float32 plane in the flat records, as stored (a leaf's slot holds the
+    bits of its first reference: read, never converted, it costs nothing)."""
+    return planes[unsigned(2 * node)]
 
 
 @inline_kernel

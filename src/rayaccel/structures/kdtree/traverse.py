@@ -80,9 +80,9 @@ def plane_steps(inv_a):
 
 
 @inline_kernel
-def cross_split(node_planes, word, node, oa, inv_a, exit_step_a, entry_step_a, t0, t1):
-    """One step at inner ``node`` (its record's second word ``word``) of a ray with origin ``oa``,
-    reciprocal direction ``inv_a`` and steps :func:`plane_steps` on the node's axis, inside
+def cross_split(plane, word, oa, inv_a, exit_step_a, entry_step_a, t0, t1):
+    """One step at an inner node (its float32 ``plane`` and its record's second word ``word``) of a
+    ray with origin ``oa``, reciprocal direction ``inv_a`` and steps :func:`plane_steps` on the node's axis, inside
     ``[t0, t1]``: ``(next, t1, pushed, push_t0, push_t1)``, the child to visit next with the end
     of its interval (its start stays ``t0``), and the child to push with its interval,
     ``pushed = -1`` when none.
@@ -107,7 +107,7 @@ def cross_split(node_planes, word, node, oa, inv_a, exit_step_a, entry_step_a, t
     forest incoherent rays 1.04-1.07 times as fast on AVX2 and on AVX-512 code, the full dragon's
     (interleaved walk) 1.00-1.07, camera and shadow rays (packets) 0.95-1.01 (one thread, 2**19
     rays, 9-11 rounds alternating with the code before in one process, both orders)."""
-    plane = node_plane(node_planes, node)
+    plane = np.float64(plane)
     below = node_child(word)
     t_plane = (plane - oa) * inv_a
     bracket = abs(plane) + PLANE_FLOOR
@@ -241,18 +241,24 @@ def walk_singly(ray_first, ray_end, tid, lo, hi, node_planes, node_links, skip_e
         n_nodes = 0
         n_leaves = 0
         node = 0
+        word = node_word(node_links, 0)
+        plane = node_plane(node_planes, 0)
         sp = 0
-        while node >= 0:
+        while True:
             n_nodes += 1
-            word = node_word(node_links, node)
             axis = word & 3
             if axis != LEAF:
                 empty = empty_children_of(skip_empty, word)
                 below = node_child(word)
-                node, t1, pushed, push_t0, push_t1 = cross_split(node_planes, word, node, origins[i, axis],
+                word_below, word_above = node_word(node_links, below), node_word(node_links, below + 1)
+                plane_below, plane_above = node_plane(node_planes, below), node_plane(node_planes, below + 1)
+                node, t1, pushed, push_t0, push_t1 = cross_split(plane, word, origins[i, axis],
                                                                   inv_dir[row_of_thread, axis],
                                                                   inv_dir[row_of_thread, 3 + axis],
                                                                   inv_dir[row_of_thread, 6 + axis], t0, t1)
+                above = node != below
+                word = word_above if above else word_below
+                plane = plane_above if above else plane_below
                 slot = unsigned(sp)
                 stack_node[row_of_thread, slot] = pushed
                 stack_t[row_of_thread, slot, 0] = push_t0
@@ -270,6 +276,10 @@ def walk_singly(ray_first, ray_end, tid, lo, hi, node_planes, node_links, skip_e
                 if any_hit and best_prim >= 0:
                     break
             node, t0, t1, sp = pop_unsettled(stack_node, stack_t, tid, sp, best_prim, best_t, t0, t1)
+            if node < 0:
+                break
+            word = node_word(node_links, node)
+            plane = node_plane(node_planes, node)
         finish_walked_ray(mode, action, work, row, best_t, best_prim, best_u, best_v, n_nodes, n_tests, n_leaves)
 
 

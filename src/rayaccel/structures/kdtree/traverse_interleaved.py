@@ -60,7 +60,7 @@ from ...geometry.box import clip_to_box
 from ...geometry.primitive import RAY_FLOATS, RAY_INTS, load_ray, ray_setup, store_ray
 from ...rays import ray_limit, result_row
 from ..actions import NEAREST, finish_walked_ray, intersect_references
-from .layout import LEAF, leaf_first, node_word
+from .layout import LEAF, leaf_first, node_plane, node_word
 from .traverse import cross_split, plane_steps, pop_unsettled, visit_apart
 
 __all__ = ["SLOTS", "SLOT_INTS", "SLOT_FLOATS", "interleaved_closest_kernel"]
@@ -163,11 +163,10 @@ def interleaved_closest_kernel(ray_first, ray_end, tid, lo, hi, node_planes, nod
             if axis != LEAF:
                 if count_work:
                     ints[slot, _NODES] += 1
-                node, t1, pushed, push_t0, push_t1 = cross_split(node_planes, word, node, floats[slot, axis],
-                                                                 floats[slot, _INV + axis],
-                                                                 floats[slot, _EXIT_STEP + axis],
-                                                                 floats[slot, _ENTRY_STEP + axis], floats[slot, _T0],
-                                                                 floats[slot, _T1])
+                node, t1, pushed, push_t0, push_t1 = cross_split(
+                    node_plane(node_planes, node), word, floats[slot, axis], floats[slot, _INV + axis],
+                    floats[slot, _EXIT_STEP + axis], floats[slot, _ENTRY_STEP + axis], floats[slot, _T0],
+                    floats[slot, _T1])
                 prefetch(node_links, 2 * node, 0)
                 top = unsigned(sp)
                 stack_node[stack, top] = pushed

@@ -290,7 +290,7 @@ def kdtree_packet_kernel(ray_first, ray_end, tid, lo, hi, node_planes, node_link
                 empty = empty_children_of(skip_empty, word)
                 near = below if (positive >> axis) & 1 else below + 1
                 far = 2 * below + 1 - near
-                sides = _split_lanes(state, axis, node_plane(node_planes, node), packet_t[tid, sp])
+                sides = _split_lanes(state, axis, np.float64(node_plane(node_planes, node)), packet_t[tid, sp])
                 near_lanes = sides & lanes
                 far_lanes = (sides >> PACKET) & lanes
                 if far_lanes != 0 and not is_empty_child(empty, below, far):
