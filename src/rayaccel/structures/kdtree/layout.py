@@ -167,8 +167,9 @@ def node_word(words, node):
 
 @inline_kernel
 def node_plane(planes, node):
-    """Inner node ``node``'s float32 plane in the flat records, as stored (a leaf's slot holds the
-    bits of its first reference: read, never converted, it costs nothing)."""
+    """Inner node ``node``'s float32 plane in the flat records, as stored, not widened (a leaf's slot
+    holds the bits of its first reference, which a walk may read with its sibling's but never uses as
+    a number)."""
     return planes[unsigned(2 * node)]
 
 

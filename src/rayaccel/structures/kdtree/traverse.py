@@ -29,10 +29,9 @@ starts from numbers already loaded, not from a load that waited for the choice. 
 chosen child's record after the choice (forest-small-chair, one thread, 2^19 incoherent rays, medians
 of 7, processes alternating, four pairs, 2026-12-06, Zen 4): closest hit 1.03-1.05, any hit
 1.03-1.06; camera rays and their shadow rays 0.98-1.02. Reading the ray's origin, reciprocal and
-steps on both children's axes too (a row of four groups of four, the fourth slot for a leaf's
-axis), so that no load waits on the choice at all, ran at 0.96-0.97 of this walk's closest hit and
-0.99-1.02 of its any hit (four pairs of processes in a noisier spell, two ways of writing the
-selects): not kept.
+steps on both children's axes too, so that no load waits on the choice at all, ran at 0.96-0.97 of
+this walk's closest hit and 0.99-1.02 of its any hit; computing both children's crossings before
+the choice, 1.00-1.03 and 1.01-1.03 (README, "Tried and dropped"): not kept.
 
 A child that is an empty leaf is neither entered nor pushed: a node's word says which of its two
 children are empty leaves (:func:`.layout.empty_flags`), so that the walk goes on with the other
@@ -94,9 +93,9 @@ def plane_steps(inv_a):
 def cross_split(plane, word, oa, inv_a, exit_step_a, entry_step_a, t0, t1):
     """One step at an inner node (its float32 ``plane`` and its record's second word ``word``) of
     a ray with origin ``oa``, reciprocal direction ``inv_a`` and steps :func:`plane_steps` on the
-    node's axis, inside ``[t0, t1]``: ``(next, t1, pushed, push_t0, push_t1)``, the child to visit next with the end
-    of its interval (its start stays ``t0``), and the child to push with its interval,
-    ``pushed = -1`` when none.
+    node's axis, inside ``[t0, t1]``: ``(next, t1, pushed, push_t0, push_t1)``, the child to visit
+    next with the end of its interval (its start stays ``t0``), and the child to push with its
+    interval, ``pushed = -1`` when none.
 
     The plane is known to lie in a bracket a float32 step wide (:func:`.layout.plane_bracket`),
     which the ray crosses from ``t_plane``, where it meets the bracket's bottom, over
