@@ -31,7 +31,11 @@ and lists the conditional branches it misses most: the way to find a choice
 LLVM compiled to a branch where the code asked for a select (NUMBA_CPU_NAME
 picks the instruction set compiled for, e.g. ``haswell`` for AVX2 code). The
 simulated predictor is older than the host's: its misses point at candidates,
-and only the time of a change says whether one costs.
+and only the time of a change says whether one costs. Under Valgrind the kernels
+come out without AVX-512 instructions even on a host that has them (no ``zmm`` nor
+mask register in the listing, 2026-12-06, Zen 4), so the counts are of AVX2-level
+code: there the kd-tree step's float choices are branches, where the host's own
+code makes them masked moves (see README, "Where the time goes").
 
     NUMBA_CPU_NAME=haswell python benchmarks/profile_walk.py --count --branches --side 128 --method kdtree
 
