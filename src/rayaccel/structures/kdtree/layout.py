@@ -56,7 +56,7 @@ from ...geometry.rounding import float32_below
 from ..build_arrays import reserve_rows
 
 __all__ = ["LEAF", "MAX_NODES", "CHILD_SHIFT", "PLANE_STEP", "PLANE_FLOOR", "KdTreeArrays", "node_word", "node_plane",
-           "node_child", "empty_flags", "leaf_first",
+           "node_record", "node_child", "empty_flags", "leaf_first",
            "plane_bracket", "node_cells", "add_children", "copy_cell", "split_cell"]
 
 LEAF = 3
@@ -171,6 +171,12 @@ def node_plane(planes, node):
     holds the bits of its first reference, which a walk may read with its sibling's but never uses as
     a number)."""
     return planes[unsigned(2 * node)]
+
+
+@inline_kernel
+def node_record(planes, words, node):
+    """``(plane, word)``: node ``node``'s :func:`node_plane` and :func:`node_word`."""
+    return node_plane(planes, node), node_word(words, node)
 
 
 @inline_kernel

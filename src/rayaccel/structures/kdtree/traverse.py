@@ -27,10 +27,10 @@ An inner step reads both children's records (plane and word) as soon as it has i
 its plane crossing, and takes the next node's from the two by the crossing's choice: the next step
 starts from numbers already loaded, not from a load that waited for the choice. Against reading the
 chosen child's record after the choice (forest-small-chair, one thread, 2^19 incoherent rays, medians
-of 7, processes alternating, four pairs, 2026-12-06, Zen 4): closest hit 1.03-1.05, any hit
+of 7, processes alternating, five pairs, 2026-12-06, Zen 4): closest hit 1.03-1.05, any hit
 1.03-1.06; camera rays and their shadow rays 0.98-1.02. Reading the ray's origin, reciprocal and
 steps on both children's axes too, so that no load waits on the choice at all, ran at 0.96-0.97 of
-this walk's closest hit and 0.99-1.02 of its any hit; computing both children's crossings before
+this walk's closest hit and 0.97-1.01 of its any hit; computing both children's crossings before
 the choice, 1.00-1.03 and 1.01-1.03 (README, "Tried and dropped"): not kept.
 
 A child that is an empty leaf is neither entered nor pushed: a node's word says which of its two
@@ -64,7 +64,7 @@ from ...rays import ray_limit, result_row
 from ..actions import NEAREST, finish_walked_ray, intersect_references
 from ..base import EXIT_MARGIN, settled_before
 from ..bvh.traverse_wide import visit_leaf
-from .layout import LEAF, PLANE_FLOOR, PLANE_STEP, empty_flags, leaf_first, node_child, node_plane, node_word
+from .layout import LEAF, PLANE_FLOOR, PLANE_STEP, empty_flags, leaf_first, node_child, node_record
 
 __all__ = ["RAY_ROW", "kdtree_closest_kernel", "kdtree_crossings_kernel", "walk_singly", "plane_steps", "cross_split",
            "empty_children_of", "is_empty_child", "skips_empty", "pop_unsettled", "visit_references", "visit_apart"]
@@ -251,8 +251,7 @@ def walk_singly(ray_first, ray_end, tid, lo, hi, node_planes, node_links, skip_e
         n_nodes = 0
         n_leaves = 0
         node = 0
-        word = node_word(node_links, 0)
-        plane = node_plane(node_planes, 0)
+        plane, word = node_record(node_planes, node_links, 0)
         sp = 0
         while True:
             n_nodes += 1
@@ -260,8 +259,8 @@ def walk_singly(ray_first, ray_end, tid, lo, hi, node_planes, node_links, skip_e
             if axis != LEAF:
                 empty = empty_children_of(skip_empty, word)
                 below = node_child(word)
-                word_below, word_above = node_word(node_links, below), node_word(node_links, below + 1)
-                plane_below, plane_above = node_plane(node_planes, below), node_plane(node_planes, below + 1)
+                plane_below, word_below = node_record(node_planes, node_links, below)
+                plane_above, word_above = node_record(node_planes, node_links, below + 1)
                 node, t1, pushed, push_t0, push_t1 = cross_split(plane, word, origins[i, axis],
                                                                   inv_dir[row_of_thread, axis],
                                                                   inv_dir[row_of_thread, 3 + axis],
@@ -288,8 +287,7 @@ def walk_singly(ray_first, ray_end, tid, lo, hi, node_planes, node_links, skip_e
             node, t0, t1, sp = pop_unsettled(stack_node, stack_t, tid, sp, best_prim, best_t, t0, t1)
             if node < 0:
                 break
-            word = node_word(node_links, node)
-            plane = node_plane(node_planes, node)
+            plane, word = node_record(node_planes, node_links, node)
         finish_walked_ray(mode, action, work, row, best_t, best_prim, best_u, best_v, n_nodes, n_tests, n_leaves)
 
 
