@@ -50,7 +50,7 @@ from .volumes import fit_kdops, fit_spheres
 from .wide import WIDTH, wide_records, wide_tree
 from .wide_slab import child_entry_rows
 
-__all__ = ["BVH_CLASSES"]
+__all__ = ["BVH_CLASSES", "trace_wide", "wide_stacks"]
 
 _BOUNDS = {"aabb": BOX, "sphere": SPHERE_VOLUME, "kdop": KDOP}
 
@@ -69,6 +69,49 @@ _WIDE_WALKS = {NEAREST: wide_nearest_kernel, COUNT: wide_count_kernel}
 # 0.95 / 0.97, 0.92 / 0.98 and 0.94 / 0.98; the whole of dragon-203k (14.5 MiB) 1.15 / 1.18 and
 # 1.11 / 1.05; the full dragon (58 MiB) 1.35 / 1.40 (README, "Library").
 _INTERLEAVE_CACHES = 13
+
+def wide_stacks(rows: int, depth: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``rows`` stacks deep enough for the eight-wide walks of a binary tree ``depth`` deep (each
+    wide node pushes at most seven entries): the entries' links, primitive counts and entry
+    distances."""
+    size = (WIDTH - 1) * depth + 2
+    return thread_rows((rows, size), np.int32), thread_rows((rows, size), np.int32), thread_rows((rows, size))
+
+
+def trace_wide(records, root_record, prim_order, kind, geometry, depth, batch, any_hit, action, work, *, packets,
+               interleave, scene_box, nbytes):
+    """Trace ``batch`` through eight-wide ``records`` (:mod:`.wide`) over ``geometry`` in leaf order
+    (``prim_order``), collapsed from a binary tree ``depth`` deep whose root box is row 0 of
+    ``root_record``: in packets when ``packets`` and the batch is coherent (a camera's rays, shadow
+    rays to one light), with several rays in flight per thread when ``interleave`` and the
+    structure (``nbytes``) outgrows the caches, else one ray at a time; each walk compiled for the
+    action's mode where there is one. Returns what the walk returns (the unusable rays met)."""
+    rows = numba.config.NUMBA_NUM_THREADS
+    n_rays = len(batch.origins)
+    tree = (records, records.view(np.int32), prim_order, kind, geometry)
+    sampled = None
+    walk = None
+    if work is None and packets and n_rays >= MIN_PACKET_RAYS:
+        sampled = sample_neighbours(batch, *scene_box)
+        if packets_pay(batch, *scene_box, sampled):
+            walk = _PACKET_WALKS.get(action.mode, wide_packet_crossings_kernel)
+        elif lane_packets_pay(batch, *scene_box, sampled):
+            walk = _LANE_PACKET_WALKS.get(action.mode, lane_packet_crossings_kernel)
+    if walk is not None:
+        return walk_rays(walk, n_rays, *tree, *batch, any_hit, *wide_stacks(rows, depth), thread_rows((rows, WIDTH)),
+                         thread_rows((rows, LANE_ROWS * PACKET)), thread_rows((rows, BOUND_VALUES)),
+                         thread_rows((rows, PACKET), np.int64), image_row_length(batch.directions, SPAN // TILE_ROWS),
+                         action, align=SPAN)
+    if interleave and interleaving_pays(batch, *scene_box, nbytes, sampled, caches=_INTERLEAVE_CACHES):
+        walk = _INTERLEAVED_WALKS.get(action.mode, interleaved_crossings_kernel)
+        return walk_rays(walk, n_rays, root_record, *tree, *batch, any_hit, *wide_stacks(rows * SLOTS, depth),
+                         child_entry_rows(rows), SLOTS, thread_rows((rows, SLOTS, SLOT_INTS), np.int64),
+                         thread_rows((rows, SLOTS, SLOT_FLOATS)), action, work)
+    walk = _WIDE_WALKS.get(action.mode, wide_crossings_kernel)
+    return walk_rays(walk, n_rays, root_record, *tree, *batch, any_hit, *wide_stacks(rows, depth),
+                     child_entry_rows(rows), action, work)
+
+
 
 # Node volumes are grown by this fraction of the scene's size (coordinates
 # included): the slab test's rounding, about 1e-16 of the coordinates, can then
@@ -282,37 +325,10 @@ class BoundingVolumeHierarchy(Accelerator):
                       b.node_records.view(np.int32), b.prim_order, self.scene.kind, self.geometry, KDOP_NORMALS,
                       *batch, any_hit, stack_node, stack_t, action, work)
             return
-        tree = (self.wide, self.wide.view(np.int32), self.prim_order, self.scene.kind, self.geometry)
-        sampled = None
-        walk = None
-        if work is None and self.options.get("packets", True) and len(batch.origins) >= MIN_PACKET_RAYS:
-            sampled = sample_neighbours(batch, *self.scene_box)
-            if packets_pay(batch, *self.scene_box, sampled):
-                walk = _PACKET_WALKS.get(action.mode, wide_packet_crossings_kernel)
-            elif lane_packets_pay(batch, *self.scene_box, sampled):
-                walk = _LANE_PACKET_WALKS.get(action.mode, lane_packet_crossings_kernel)
-        if walk is not None:
-            return walk_rays(walk, len(batch.origins), *tree, *batch, any_hit, *self._wide_stacks(rows),
-                             thread_rows((rows, WIDTH)), thread_rows((rows, LANE_ROWS * PACKET)),
-                             thread_rows((rows, BOUND_VALUES)), thread_rows((rows, PACKET), np.int64),
-                             image_row_length(batch.directions, SPAN // TILE_ROWS), action, align=SPAN)
-        if self.options.get("interleave", True) and interleaving_pays(batch, *self.scene_box, self.nbytes, sampled,
-                                                                       caches=_INTERLEAVE_CACHES):
-            walk = _INTERLEAVED_WALKS.get(action.mode, interleaved_crossings_kernel)
-            return walk_rays(walk, len(batch.origins), self.root_record, *tree, *batch, any_hit,
-                             *self._wide_stacks(rows * SLOTS), child_entry_rows(rows), SLOTS,
-                             thread_rows((rows, SLOTS, SLOT_INTS), np.int64), thread_rows((rows, SLOTS, SLOT_FLOATS)),
-                             action, work)
-        walk = _WIDE_WALKS.get(action.mode, wide_crossings_kernel)
-        return walk_rays(walk, len(batch.origins), self.root_record, *tree, *batch, any_hit, *self._wide_stacks(rows),
-                         child_entry_rows(rows), action, work)
-
-    def _wide_stacks(self, rows: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """``rows`` stacks deep enough for the eight-wide walks: the entries' links, primitive
-        counts and entry distances."""
-        depth = (WIDTH - 1) * self.max_depth + 2
-        return (thread_rows((rows, depth), np.int32), thread_rows((rows, depth), np.int32),
-                thread_rows((rows, depth)))
+        return trace_wide(self.wide, self.root_record, self.prim_order, self.scene.kind, self.geometry, self.max_depth,
+                          batch, any_hit, action, work, packets=self.options.get("packets", True),
+                          interleave=self.options.get("interleave", True), scene_box=self.scene_box,
+                          nbytes=self.nbytes)
 
     def _nearest(self, points, limit_d2, out_d2, out_prim):
         """The walk by distance of :mod:`.nearest` over the binary tree."""

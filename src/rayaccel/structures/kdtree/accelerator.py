@@ -18,6 +18,8 @@ from ...ray_tiles import image_row_length
 from ...stats import box_area, surface_area_stats
 from ..actions import NEAREST
 from ..base import Accelerator, walk_rays
+from ..bvh.accelerator import trace_wide
+from ..bvh.wide import WIDTH
 from ..grid.build_uniform import grid_box
 from ..large_primitives import large_primitives
 from .build_sah_binned import build_binned_top
@@ -27,6 +29,7 @@ from .nearest import kdtree_nearest_kernel
 from .traverse import RAY_ROW, kdtree_closest_kernel, kdtree_crossings_kernel
 from .traverse_interleaved import SLOT_FLOATS, SLOT_INTS, SLOTS, interleaved_closest_kernel
 from .traverse_packet import PACKET, PACKET_ROWS, kdtree_packet_kernel
+from .wide_cells import cell_hierarchy
 
 __all__ = ["KdTree", "ROWS_BYTES_PER_TRIANGLE"]
 
@@ -178,15 +181,26 @@ class KdTree(Accelerator):
         events itself: on the full dragon this measured 8 % less CPU time
         than a call per cell with the events sorted by numpy (median of 12
         builds, 5.25 against 5.69 s).
+    width : 2 or 8, default 8
+        Walk the tree's cells collapsed eight to a node (:mod:`.wide_cells`) with the
+        eight-wide walks of the BVH: the same cells in the same order as the binary walk,
+        three levels of planes a step. Against the binary walks of the same tree, same
+        answers (2026-12-06, medians of 7 interleaved rounds): forest-small-chair (one
+        thread) incoherent rays 1.73 / 1.69 times as fast (closest / any hit), camera
+        rays 2.05 / 3.01, shadow rays 1.41 / 1.55; the full dragon (two threads) 1.58 /
+        1.63, 1.64 / 1.73 and 1.37 / 1.40. 2 walks the binary tree one plane a step, as
+        the lecture's traversal does (:mod:`.traverse`); the counting and collecting
+        queries, which must meet each primitive once per ray, always do. Statistics
+        describe the binary tree; the node counter counts the nodes walked.
     packets : bool, default True
-        Trace a coherent batch (:func:`rayaccel.ray_order.packets_pay` or
+        With either width, trace a coherent batch (:func:`rayaccel.ray_order.packets_pay` or
         :func:`rayaccel.ray_order.lane_packets_pay`: a camera's rays, shadow rays
         from their hits to one light) in packets of eight consecutive rays that
         walk the tree together (:mod:`rayaccel.structures.kdtree.traverse_packet`), an
         image's rays in packets of four pixels by two (:mod:`rayaccel.ray_tiles`).
         ``False`` walks every ray on its own. The answers are the same either way.
     interleave : bool, default True
-        Trace an incoherent batch through a tree larger than the caches
+        With either width, trace an incoherent batch through a tree larger than the caches
         (:func:`rayaccel.ray_order.interleaving_pays`) with several rays in
         flight per thread, each ray's wait for its next node overlapping the
         others' steps (:mod:`rayaccel.structures.kdtree.traverse_interleaved`;
@@ -205,14 +219,15 @@ class KdTree(Accelerator):
         nor a pop (the rays-in-flight walk enters it, uncounted), and the work
         counters count only the leaves a ray tests. ``False`` walks into empty
         leaves, as the lecture's traversal does, and counts them (``rayaccel
-        experiment kdtree-table``). Same answers either way.
+        experiment kdtree-table``); it needs ``width=2``, since the cells walked
+        eight-wide hold no empty leaf. Same answers either way.
     """
 
     method = "kdtree"
     build_bytes_per_primitive = 1200
 
     def __init__(self, scene, *, traversal_cost=1.0, intersection_cost=1.33, empty_bonus=0.2, leaf_size=12,
-                 max_depth=None, bins=64, exact_below=4096, threads=None, packets=True, interleave=True,
+                 max_depth=None, bins=64, exact_below=4096, threads=None, width=WIDTH, packets=True, interleave=True,
                  large_apart=True, skip_empty=True):
         n = len(scene)
         if n > _MAX_PRIMS:
@@ -228,9 +243,14 @@ class KdTree(Accelerator):
             "bins": check_number("bins", bins, integer=True, minimum=2, inclusive=True, maximum=4096),
             "exact_below": check_number("exact_below", exact_below, integer=True, inclusive=True),
         }
+        if width not in (2, WIDTH) or isinstance(width, bool):
+            raise ValueError(f"width must be 2 or {WIDTH}, got {width!r}")
+        if width == WIDTH and not check_flag("skip_empty", skip_empty):
+            raise ValueError(f"skip_empty=False walks into empty leaves, which only the binary walks have: pass "
+                             f"width=2 with it (the width {WIDTH} walk never enters an empty leaf)")
         threads = thread_count() if threads is None else check_number("threads", threads, integer=True, minimum=1,
                                                                        inclusive=True)
-        super().__init__(scene, {**options, "packets": check_flag("packets", packets),
+        super().__init__(scene, {**options, "width": width, "packets": check_flag("packets", packets),
                                  "interleave": check_flag("interleave", interleave),
                                  "large_apart": check_flag("large_apart", large_apart),
                                  "skip_empty": check_flag("skip_empty", skip_empty)})
@@ -253,9 +273,12 @@ class KdTree(Accelerator):
         float32 copy of forest-small-chair, incoherent rays 0.92-1.07; dragon-48k, 0.95-1.07
         for 202.6 bytes a triangle instead of 114.4, over the limit. The walks read the tree's
         references followed by the primitives kept apart (``refs``, from ``apart_first`` on, in the
-        box ``apart_box``; :mod:`.traverse`)."""
+        box ``apart_box``; :mod:`.traverse`), and, walked eight-wide, the cells collapsed eight to a
+        node (:mod:`.wide_cells`; ``cells``, ``None`` for the binary walks)."""
         self.apart_first = len(self.kd.leaf_prims)
         self.apart_box = self._box_of(self.apart_prims)
+        wide = self.options.get("width", WIDTH) == WIDTH
+        self.cells = cell_hierarchy(self.kd, self.apart_first, len(self.apart_prims), self.apart_box) if wide else None
         self.refs = np.concatenate((self.kd.leaf_prims, self.apart_prims.astype(np.int32)))
         self.geometry = self.scene.gather(self.refs, indexed=not self._rows_fit())
         self.max_depth = _tree_depth(self.kd)
@@ -341,7 +364,7 @@ class KdTree(Accelerator):
         if scene.kind != TRIANGLE or not scene.float32_exact:
             return False
         k = self.kd
-        rows_bytes = k.nbytes + (len(k.leaf_prims) + len(self.apart_prims)) * _ROW_BYTES
+        rows_bytes = k.nbytes + self._cells_nbytes + (len(k.leaf_prims) + len(self.apart_prims)) * _ROW_BYTES
         return rows_bytes <= ROWS_BYTES_PER_TRIANGLE * len(scene)
 
     def node_cells(self) -> np.ndarray:
@@ -351,12 +374,33 @@ class KdTree(Accelerator):
         return node_cells(self.kd.lo, self.kd.hi, *self.kd.walk_records)[0]
 
     @property
+    def _cells_nbytes(self) -> int:
+        return self.cells.nbytes if self.cells is not None else 0
+
+    @property
     def _large_primitives_first(self) -> bool:
         """Whether :meth:`Accelerator._walk_prepared` tests the large primitives first: not when the
-        tree keeps them apart, which every walk visits first (:func:`.traverse.visit_apart`)."""
+        tree keeps them apart, which every walk visits first (:func:`.traverse.visit_apart`; walked
+        eight-wide, the first child of the root an any-hit walk takes, :mod:`.wide_cells`)."""
         return not len(self.apart_prims)
 
+    @property
+    def _walk_checks_rays(self) -> bool:
+        """The eight-wide walks test the rays themselves (see the BVH's)."""
+        return self.cells is not None
+
+    @property
+    def _walk_takes_float32(self) -> bool:
+        """The eight-wide walks over triangles read float32 rays as they are (see the BVH's)."""
+        return self.cells is not None and self.scene.kind == TRIANGLE
+
     def _trace(self, batch, any_hit, action, work):
+        if self.cells is not None and action.mode == NEAREST:
+            cells = self.cells
+            return trace_wide(cells.records, cells.root_record, self.refs, self.scene.kind, self.geometry, cells.depth,
+                              batch, any_hit, action, work, packets=self.options.get("packets", True),
+                              interleave=self.options.get("interleave", True), scene_box=self.scene_box,
+                              nbytes=self.nbytes)
         k = self.kd
         rows = numba.config.NUMBA_NUM_THREADS
         n_rays = len(batch.origins)
@@ -381,12 +425,13 @@ class KdTree(Accelerator):
 
     @property
     def _walk_gains_from_sorting(self) -> bool:
-        """Sorting an incoherent batch (:mod:`rayaccel.ray_order`) and keeping rays in flight hide
+        """The eight-wide walks trace incoherent rays slower sorted (see the BVH's). Sorting an incoherent batch (:mod:`rayaccel.ray_order`) and keeping rays in flight hide
         the same waits, and the interleaved walk does better with the rays as given: full dragon,
         2**20 incoherent rays, two threads, closest / any hit, 3.16 / 3.34 Mrays/s as given
         against 2.88 / 2.97 sorted, and 2.71 / 2.78 and 2.77 / 2.86 for the single walk
-        (medians of 7 interleaved rounds). So the rays are sorted only without ``interleave``."""
-        return not self.options.get("interleave", True)
+        (medians of 7 interleaved rounds). So the binary walks' rays are sorted only without
+        ``interleave``."""
+        return self.cells is None and not self.options.get("interleave", True)
 
     def _stacks(self, rows: int) -> tuple[np.ndarray, np.ndarray]:
         """``rows`` stacks as deep as the tree: the pending cells' nodes and their intervals."""
@@ -421,9 +466,9 @@ class KdTree(Accelerator):
 
     @property
     def nbytes(self) -> int:
-        """Bytes of the arrays that queries read: the tree and the primitives in reference order,
-        those kept apart last."""
-        return int(self.kd.nbytes + 4 * len(self.apart_prims) + layout_nbytes(self.geometry))
+        """Bytes of the arrays that queries read: the tree, its cells walked eight-wide, and the
+        primitives in reference order, those kept apart last."""
+        return int(self.kd.nbytes + self._cells_nbytes + 4 * len(self.apart_prims) + layout_nbytes(self.geometry))
 
     def _structure_stats(self) -> dict:
         k = self.kd
@@ -445,6 +490,7 @@ class KdTree(Accelerator):
             "leaves_at_leaf_size": int(np.count_nonzero(counts[~over_leaf_size])),
             "leaves_at_depth_limit": int(at_depth_limit.sum()),
             "leaves_by_cost": int(over_leaf_size.sum() - at_depth_limit.sum()),
+            "wide_nodes": len(self.cells.records) if self.cells is not None else 0,
             "bytes": self.nbytes,
         }
         sa = surface_area_stats(areas[0], step_areas=areas[~leaf], leaf_areas=areas[leaf], leaf_counts=counts,
