@@ -47,14 +47,15 @@ def own_limits(n, seed=2):
     return t_min, t_max
 
 
+@pytest.mark.parametrize("method", ["bvh-binned", "kdtree"])
 @pytest.mark.parametrize("limits", ["shared", "per ray"])
 @pytest.mark.parametrize("batch", list(WALKS))
 def test_float32_rays_walk_as_they_are_and_hit_what_their_float64_copy_hits(small_dragon, monkeypatch, batch,
-                                                                             limits):
+                                                                             limits, method):
     """Closest hit, any hit and ``occluded`` of float32 rays in each eight-wide walk (single ray,
-    interval packets with partial packets, lane packets, interleaved): the walk receives the
-    float32 arrays, and every field of the answer is bit for bit that of the float64 copy, which
-    brute force confirms."""
+    interval packets with partial packets, lane packets, interleaved), over a BVH and over a
+    kd-tree's cells: the walk receives the float32 arrays, and every field of the answer is bit
+    for bit that of the float64 copy, which brute force confirms."""
     origins, directions = rays_of(small_dragon, batch)
     if batch == "random interleaved":
         monkeypatch.setattr(accelerator, "interleaving_pays", lambda batch, lo, hi, nbytes, sampled, **_: True)
@@ -63,7 +64,7 @@ def test_float32_rays_walk_as_they_are_and_hit_what_their_float64_copy_hits(smal
     monkeypatch.setattr(accelerator, "walk_rays", lambda walk, n, *args, **options: seen.append((walk.__name__, args))
                         or walk_rays(walk, n, *args, **options))
     t_min, t_max = (0.0, np.inf) if limits == "shared" else own_limits(len(origins))
-    wide, brute = ra.build(small_dragon, "bvh-binned"), ra.build(small_dragon, "none")
+    wide, brute = ra.build(small_dragon, method), ra.build(small_dragon, "none")
     wide_origins, wide_directions = origins.astype(np.float64), directions.astype(np.float64)
     for any_hit in (False, True):
         seen.clear()
@@ -82,10 +83,10 @@ def test_float32_rays_walk_as_they_are_and_hit_what_their_float64_copy_hits(smal
 
 @pytest.mark.parametrize("method", ["kdtree", "grid", "bvh-sah"])
 def test_float32_rays_of_other_walks_take_their_float64_copy(small_dragon, method):
-    """Structures whose walks read float64 rays only (and the BVH with a two-wide walk) answer
+    """Structures whose walks read float64 rays only (and the BVH and the kd-tree walked two-wide) answer
     float32 rays as their float64 copy."""
     origins, directions = rays_of(small_dragon, "camera")
-    options = {"width": 2} if method == "bvh-sah" else {}
+    options = {"width": 2} if method in ("bvh-sah", "kdtree") else {}
     structure = ra.build(small_dragon, method, **options)
     assert not structure._walk_takes_float32
     assert_same_hits(structure.intersect(origins.astype(np.float64), directions.astype(np.float64)),

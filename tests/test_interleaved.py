@@ -31,8 +31,13 @@ def every_batch_interleaved(monkeypatch):
         monkeypatch.setattr(module, "interleaving_pays", lambda batch, lo, hi, nbytes, sampled, **_: True)
 
 
-def brute_interleaved_single(scene, method="bvh-binned"):
-    return ra.build(scene, "none"), ra.build(scene, method), ra.build(scene, method, interleave=False)
+def brute_interleaved_single(scene, method="bvh-binned", **options):
+    return (ra.build(scene, "none"), ra.build(scene, method, **options),
+            ra.build(scene, method, interleave=False, **options))
+
+
+# The kd-tree walked eight-wide takes the BVH's walks; walked two-wide, its own.
+WALKED = [("bvh-binned", {}), ("kdtree", {}), ("kdtree", {"width": 2})]
 
 
 def with_own_intervals(origins, seed=5):
@@ -44,8 +49,8 @@ def with_own_intervals(origins, seed=5):
 
 
 @pytest.mark.parametrize("rays", ["random", "vertices_and_edges", "axis_parallel", "camera"])
-@pytest.mark.parametrize("method", ["bvh-binned", "bvh-sah", "kdtree"])
-def test_interleaved_walk_matches_brute_force(small_dragon, every_batch_interleaved, rays, method):
+@pytest.mark.parametrize(("method", "options"), [*WALKED, ("bvh-sah", {})])
+def test_interleaved_walk_matches_brute_force(small_dragon, every_batch_interleaved, rays, method, options):
     """Rays in every direction (many starting outside the tree's box, many missing it), aimed
     exactly at vertices and edges, along the axes with zero components of either sign, and a
     camera's; each with its own interval."""
@@ -53,7 +58,7 @@ def test_interleaved_walk_matches_brute_force(small_dragon, every_batch_interlea
             "camera": lambda scene, n, seed: camera_rays(scene, 64)}
     origins, directions = make[rays](small_dragon, 3001, seed=3)
     t_min, t_max = with_own_intervals(origins)
-    brute, interleaved, single = brute_interleaved_single(small_dragon, method)
+    brute, interleaved, single = brute_interleaved_single(small_dragon, method, **options)
     reference = brute.intersect(origins, directions, t_min, t_max)
     assert_same_hits(reference, interleaved.intersect(origins, directions, t_min, t_max))
     np.testing.assert_array_equal(interleaved.occluded(origins, directions, t_min, t_max), reference.hit)
@@ -68,26 +73,26 @@ def test_interleaved_walk_matches_brute_force(small_dragon, every_batch_interlea
 
 @pytest.mark.parametrize("n", sorted({1, 2, 3 * SLOTS + 5} | {SLOTS + k for k in (-1, 0, 1)}
                                       | {KDTREE_SLOTS + k for k in (-1, 0, 1)}))
-@pytest.mark.parametrize("method", ["bvh-binned", "kdtree"])
-def test_batches_with_fewer_rays_than_slots(small_dragon, every_batch_interleaved, n, method):
+@pytest.mark.parametrize(("method", "options"), WALKED)
+def test_batches_with_fewer_rays_than_slots(small_dragon, every_batch_interleaved, n, method, options):
     """Batches that leave slots free from the start or free them one by one at the end,
     with rays that miss the tree's box among them."""
     origins, directions = random_rays(small_dragon, n, seed=n)
     origins[::3] = small_dragon.bounds().scene_hi + 1.0
     directions[::3] = [1.0, 0.5, 0.25]
-    brute, interleaved, _ = brute_interleaved_single(small_dragon, method)
+    brute, interleaved, _ = brute_interleaved_single(small_dragon, method, **options)
     reference = brute.intersect(origins, directions)
     assert_same_hits(reference, interleaved.intersect(origins, directions))
     np.testing.assert_array_equal(interleaved.occluded(origins, directions), reference.hit)
 
 
-@pytest.mark.parametrize("method", ["bvh-binned", "kdtree"])
-def test_interleaved_spheres_match_brute_force(spheres, every_batch_interleaved, method):
+@pytest.mark.parametrize(("method", "options"), WALKED)
+def test_interleaved_spheres_match_brute_force(spheres, every_batch_interleaved, method, options):
     """Closest and any hit on spheres (the walk's steps do not depend on the primitive kind; counting
     and listing through it are tested on the mesh, which spares compiling their kernel for spheres)."""
     origins, directions = random_rays(spheres, 2000, seed=4)
     t_min, t_max = with_own_intervals(origins)
-    brute, interleaved, _ = brute_interleaved_single(spheres, method)
+    brute, interleaved, _ = brute_interleaved_single(spheres, method, **options)
     reference = brute.intersect(origins, directions, t_min, t_max)
     assert_same_hits(reference, interleaved.intersect(origins, directions, t_min, t_max))
     np.testing.assert_array_equal(interleaved.occluded(origins, directions, t_min, t_max), reference.hit)

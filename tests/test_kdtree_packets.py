@@ -1,4 +1,5 @@
-"""Packets of eight rays through the kd-tree give each ray the hit brute force gives it."""
+"""Packets of eight rays through the kd-tree's binary walk (``width=2``; the default eight-wide walk
+is the BVH's, :mod:`test_packets`) give each ray the hit brute force gives it."""
 
 from __future__ import annotations
 
@@ -32,7 +33,8 @@ def every_batch_in_packets(monkeypatch):
 
 
 def brute_packets_single(scene):
-    return ra.build(scene, "none"), ra.build(scene, "kdtree"), ra.build(scene, "kdtree", packets=False)
+    return (ra.build(scene, "none"), ra.build(scene, "kdtree", width=2),
+            ra.build(scene, "kdtree", width=2, packets=False))
 
 
 def assert_all_queries_match(brute, accels, origins, directions, t_min=0.0, t_max=np.inf):
@@ -62,7 +64,7 @@ def test_packets_entering_empty_leaves_or_not_match_brute_force(small_dragon, ev
     """Packets that skip the empty children of a node (the default) and packets that enter them
     give the answers of brute force, for camera and random rays alike."""
     brute = ra.build(small_dragon, "none")
-    packets = ra.build(small_dragon, "kdtree", skip_empty=skip_empty)
+    packets = ra.build(small_dragon, "kdtree", width=2, skip_empty=skip_empty)
     assert packets.options["skip_empty"] == skip_empty
     for origins, directions in (camera_rays(small_dragon, 40), random_rays(small_dragon, 2000, seed=11)):
         assert_all_queries_match(brute, [packets], origins, directions)
@@ -80,7 +82,8 @@ def test_wide_camera_packets_with_limits_match_brute_force(small_dragon, limits)
         t_min = rng.uniform(0.0, 0.5, len(origins))
         t_max = np.where(rng.random(len(origins)) < 0.5, np.inf, rng.uniform(0.6, 1.2, len(origins)))
     assert packets_pay(prepare_rays(origins, directions), b.scene_lo, b.scene_hi)
-    reference = assert_all_queries_match(ra.build(small_dragon, "none"), [ra.build(small_dragon, "kdtree")],
+    reference = assert_all_queries_match(ra.build(small_dragon, "none"),
+                                         [ra.build(small_dragon, "kdtree", width=2), ra.build(small_dragon, "kdtree")],
                                          origins, directions, t_min, t_max)
     assert reference.hit.any() and not reference.hit.all()
 
@@ -128,7 +131,9 @@ def test_packets_of_one_origin_through_vertices_and_edges_match_brute_force(smal
 
 def test_sphere_packets_match_brute_force(spheres):
     origins, directions = camera_rays(spheres, 48)
-    assert_all_queries_match(ra.build(spheres, "none"), [ra.build(spheres, "kdtree")], origins, directions, 0.0, 3.0)
+    assert_all_queries_match(ra.build(spheres, "none"),
+                             [ra.build(spheres, "kdtree", width=2), ra.build(spheres, "kdtree")], origins, directions,
+                             0.0, 3.0)
 
 
 def test_packets_option(small_dragon):

@@ -26,6 +26,7 @@ VARIANTS = [
     ("grid", {}), ("grid", {"resolution": (1, 1, 1)}), ("grid", {"density": 64.0, "insert": "exact"}),
     ("grid", {"mailbox": False}), ("hgrid", {}), ("grid-bvh", {}), ("octree", {}), ("octree", {"leaf_size": 1}),
     ("kdtree", {}), ("kdtree", {"leaf_size": 1}), ("kdtree", {"leaf_size": 64}), ("kdtree", {"exact_below": 0}),
+    ("kdtree", {"width": 2}),
     *[(method, {}) for method in ra.methods() if method.startswith("bvh-")],
     ("bvh-binned", {"max_leaf_size": 1}), ("bvh-binned", {"max_leaf_size": 64}), ("bvh-binned", {"width": 2}),
     ("bvh-binned", {"bounds": "sphere"}), ("bvh-binned", {"bounds": "kdop"}),

@@ -156,15 +156,15 @@ def test_tiles_follow_chunks_of_any_length(small_dragon, tiles_seen, monkeypatch
 
 @pytest.mark.parametrize("width, height", [(36, 30), (64, 40)])
 def test_kdtree_tiles_rows_of_any_multiple_of_four(small_dragon, tiles_seen, monkeypatch, width, height):
-    """The kd-tree's packets have no spans: rows of any multiple of four pixels go in tiles, over
-    chunks of any length; packets whose rays head apart (rays through a wide view) take the single
-    walk, each of their two rows."""
+    """The binary kd-tree walk's packets have no spans: rows of any multiple of four pixels go in
+    tiles, over chunks of any length; packets whose rays head apart (rays through a wide view) take
+    the single walk, each of their two rows."""
     from rayaccel.structures import base
     monkeypatch.setattr(base, "RAY_CHUNK", 100)
     monkeypatch.setattr(base, "CHUNKS_PER_THREAD", 5)
     origins, directions = image_rays(small_dragon, width, height, fov=120.0)
-    single = ra.build(small_dragon, "kdtree", packets=False)
-    packets = ra.build(small_dragon, "kdtree")
+    single = ra.build(small_dragon, "kdtree", width=2, packets=False)
+    packets = ra.build(small_dragon, "kdtree", width=2)
     assert_same_hits(single.intersect(origins, directions), packets.intersect(origins, directions))
     np.testing.assert_array_equal(single.occluded(origins, directions), packets.occluded(origins, directions))
     assert tiles_seen == [width, width]

@@ -9,6 +9,7 @@ from conftest import (
     assert_same_hits,
     axis_parallel_rays,
     camera_rays,
+    ground_and_clutter,
     random_rays,
     vertex_and_edge_rays,
 )
@@ -19,6 +20,7 @@ import rayaccel as ra
 from rayaccel.geometry.gather import layout_rows
 from rayaccel.geometry.overlap import prim_overlaps_box
 from rayaccel.geometry.rounding import float32_below
+from rayaccel.structures.bvh import accelerator as bvh_accelerator
 from rayaccel.structures.bvh.wide import COUNT, LINK, WIDTH
 from rayaccel.structures.kdtree import accelerator as kdtree_accelerator
 from rayaccel.structures.kdtree.accelerator import ROWS_BYTES_PER_TRIANGLE
@@ -28,7 +30,7 @@ from rayaccel.structures.kdtree.layout import LEAF
 SPATIAL = ["kdtree", "octree", "hgrid", "grid-bvh"]
 VARIANTS = {
     "kdtree": [{}, {"leaf_size": 1, "empty_bonus": 0.0, "threads": 1, "exact_below": 0},
-               {"exact_below": 64, "bins": 8}, {"max_depth": 12}],
+               {"exact_below": 64, "bins": 8}, {"max_depth": 12}, {"width": 2}],
     "octree": [{}, {"insert": "bbox", "leaf_size": 2}],
     "hgrid": [{}, {"insert": "exact", "mailbox": False, "threshold": 2}],
     "grid-bvh": [{}, {"threshold": 1, "density": 2.0}, {"density": 0.5, "mailbox": True}],
@@ -69,7 +71,7 @@ def test_references_read_their_primitives_in_reference_order(method, options, sc
     scene = request.getfixturevalue(scene_name)
     accel = ra.build(scene, method, **options)
     refs = accel.kd.leaf_prims if method == "kdtree" else accel.hybrid.cell_prims
-    structure = (accel.kd.nbytes if method == "kdtree" else accel.hybrid.nbytes + accel.wide.nbytes
+    structure = (accel.kd.nbytes + accel.cells.nbytes if method == "kdtree" else accel.hybrid.nbytes + accel.wide.nbytes
                  + accel.wide_root.nbytes + accel.mailboxes.nbytes)
     rows_fit = (method == "kdtree" and scene_name != "spheres" and scene.float32_exact
                 and structure + 36 * len(refs) <= ROWS_BYTES_PER_TRIANGLE * len(scene))
@@ -280,15 +282,17 @@ def test_kdtree_events_sorted_by_position_then_type(n, seed, grid):
         assert sorted(got) == expected
 
 
+@pytest.mark.parametrize("width", [2, 8])
 @pytest.mark.parametrize("interleaved", [False, True])
 @pytest.mark.parametrize("any_hit", [False, True])
-def test_kdtree_walks_neither_enter_nor_push_empty_leaves(closed_sphere_mesh, monkeypatch, interleaved, any_hit):
+def test_kdtree_walks_neither_enter_nor_push_empty_leaves(closed_sphere_mesh, monkeypatch, interleaved, any_hit,
+                                                          width):
     """The flags of empty children in the nodes' words name exactly the empty leaves, and no walk
     counts a visit to one: a ray that tests no primitive has visited no leaf, however many inner
     nodes it stepped through (rays from the corners of the sphere's box, outwards and inwards, and
-    random ones). With ``skip_empty=False`` the walks enter them and count them, with the same
-    answers."""
-    accel = ra.build(closed_sphere_mesh, "kdtree")
+    random ones); the cells walked eight-wide hold no empty leaf at all. With ``skip_empty=False``
+    the binary walks enter them and count them, with the same answers."""
+    accel = ra.build(closed_sphere_mesh, "kdtree", width=width)
     kd = accel.kd
     inner = np.flatnonzero(kd.axis != LEAF)
     below = kd.node_link[inner, 0]
@@ -299,6 +303,7 @@ def test_kdtree_walks_neither_enter_nor_push_empty_leaves(closed_sphere_mesh, mo
     assert not flags[kd.axis == LEAF].any()
     if interleaved:
         monkeypatch.setattr(kdtree_accelerator, "interleaving_pays", lambda *_, **__: True)
+        monkeypatch.setattr(bvh_accelerator, "interleaving_pays", lambda *_, **__: True)
     bounds = closed_sphere_mesh.bounds()
     centre, half = (bounds.scene_lo + bounds.scene_hi) / 2, (bounds.scene_hi - bounds.scene_lo) / 2
     corners = centre + 0.98 * half * np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)])
@@ -315,14 +320,67 @@ def test_kdtree_walks_neither_enter_nor_push_empty_leaves(closed_sphere_mesh, mo
         np.testing.assert_array_equal(result.prim >= 0, reference.prim >= 0)
     else:
         assert_same_hits(reference, result)
-    entering = ra.build(closed_sphere_mesh, "kdtree", skip_empty=False)
+    entering = ra.build(closed_sphere_mesh, "kdtree", skip_empty=False, width=2)
     assert np.array_equal(entering.kd.node_records, kd.node_records)
     walked = entering.intersect(origins, directions, any_hit=any_hit, counters=True)
     np.testing.assert_array_equal(walked.prim >= 0, result.prim >= 0)
     if not any_hit:
         assert_same_hits(reference, walked)
     assert (walked.counters.leaves[work.tests == 0] > 0).any()
-    assert (walked.counters.nodes >= work.nodes).all()
+    if width == 2:
+        assert (walked.counters.nodes >= work.nodes).all()
+
+
+def _wide_leaf_boxes(records):
+    """``(first, count, box)`` of every leaf child of eight-wide ``records``, box as lo, hi."""
+    links = records.view(np.int32)
+    leaves = []
+    for node in range(len(records)):
+        for c in range(WIDTH):
+            if links[node, COUNT + c] > 0:
+                box = records[node, [WIDTH * j + c for j in range(6)]].astype(np.float64)
+                leaves.append((links[node, LINK + c], links[node, COUNT + c], box))
+    return leaves
+
+
+@pytest.mark.parametrize(("scene_name", "options"), [("small_dragon", {}), ("closed_sphere_mesh", {}),
+                                                     ("ground_and_clutter", {}),
+                                                     ("ground_and_clutter", {"large_apart": False})])
+def test_kdtree_cells_walked_eight_wide_are_its_nonempty_leaves(scene_name, options, request):
+    """The eight-wide records of a kd-tree (:mod:`rayaccel.structures.kdtree.wide_cells`) hold each
+    leaf that holds references once, no empty one, every node reached once, in a box around the
+    leaf's cell within a hair (the rounding margin and float32's rounding); the primitives kept apart are the first child
+    of the root, in their box, and the binary walk's cells give the same answers."""
+    scene = ground_and_clutter() if scene_name == "ground_and_clutter" else request.getfixturevalue(scene_name)
+    accel = ra.build(scene, "kdtree", **options)
+    kd, records = accel.kd, accel.cells.records
+    links = records.view(np.int32)
+    cells = accel.node_cells()
+    leaf = kd.axis == LEAF
+    nonempty = np.flatnonzero(leaf & (kd.count > 0))
+    first_of = {int(kd.node_records[node, 0]): node for node in nonempty}
+    seen = _wide_leaf_boxes(records)
+    apart = [entry for entry in seen if entry[0] == accel.apart_first]
+    kd_leaves = [entry for entry in seen if entry[0] != accel.apart_first]
+    assert sorted(first_of[first] for first, _, _ in kd_leaves) == sorted(nonempty)
+    size = float(np.abs(cells[0]).max() + (cells[0, 3:] - cells[0, :3]).max())
+    for first, count, box in kd_leaves:
+        node = first_of[first]
+        assert count == kd.count[node]
+        assert (box[:3] <= cells[node, :3]).all() and (box[3:] >= cells[node, 3:]).all()
+        hair = 1e-9 * size + 2.0 ** -22 * np.abs(cells[node])
+        assert (cells[node, :3] - box[:3] < hair[:3]).all() and (box[3:] - cells[node, 3:] < hair[3:]).all()
+    inner_children = links[:, COUNT:COUNT + WIDTH] == 0
+    assert sorted(links[:, LINK:LINK + WIDTH][inner_children]) == list(range(1, len(records)))
+    if len(accel.apart_prims):
+        assert len(apart) == 1 and apart[0][1] == len(accel.apart_prims)
+        assert links[0, COUNT] == len(accel.apart_prims) and links[0, LINK] == accel.apart_first
+        assert (apart[0][2][:3] <= accel.apart_box[0]).all() and (apart[0][2][3:] >= accel.apart_box[1]).all()
+    else:
+        assert not apart
+    origins, directions = random_rays(scene, 2000, seed=8)
+    assert_same_hits(ra.build(scene, "kdtree", width=2, **options).intersect(origins, directions),
+                     accel.intersect(origins, directions))
 
 
 def test_kdtree_does_not_depend_on_threads_or_batches(small_dragon):
@@ -470,6 +528,11 @@ def test_bad_options(small_dragon):
         ra.build(small_dragon, "kdtree", bins=1)
     with pytest.raises(ValueError, match="exact_below"):
         ra.build(small_dragon, "kdtree", exact_below=-1)
+    for width in (4, True, "8"):
+        with pytest.raises(ValueError, match="width"):
+            ra.build(small_dragon, "kdtree", width=width)
+    with pytest.raises(ValueError, match="width=2"):
+        ra.build(small_dragon, "kdtree", skip_empty=False)
 
 
 def test_statistics_are_consistent(small_dragon):

@@ -56,10 +56,10 @@ __all__ = ["DEFAULT_SCENES", "LECTURE_OPTIONS", "ROWS", "LINES", "lecture_figure
 DEFAULT_SCENES = ("dragon", "dragon-203k", "armadillo", "buddha", "bunny", "forest", "forest-large-chair",
                   "forest-small-chair")
 
-LECTURE_OPTIONS = {"kdtree": {"leaf_size": 2, "intersection_cost": 20.0, "skip_empty": False}}
+LECTURE_OPTIONS = {"kdtree": {"leaf_size": 2, "intersection_cost": 20.0, "skip_empty": False, "width": 2}}
 """Options of the lecture's trees, per method; other methods are built with their defaults. The
-kd-tree's walk enters empty leaves, as the lecture's does, so that its steps and leaves are counted
-as the lecture counts them."""
+kd-tree is walked as a binary tree that enters empty leaves, as the lecture's is, so that its steps
+and leaves are counted as the lecture counts them."""
 
 LINES = 100_000
 """Random lines of the first-hit expectation."""

@@ -425,8 +425,9 @@ class KdTree(Accelerator):
 
     @property
     def _walk_gains_from_sorting(self) -> bool:
-        """The eight-wide walks trace incoherent rays slower sorted (see the BVH's). Sorting an incoherent batch (:mod:`rayaccel.ray_order`) and keeping rays in flight hide
-        the same waits, and the interleaved walk does better with the rays as given: full dragon,
+        """The eight-wide walks trace incoherent rays slower sorted (see the BVH's). For the binary
+        walks, sorting an incoherent batch (:mod:`rayaccel.ray_order`) and keeping rays in flight
+        hide the same waits, and the interleaved walk does better with the rays as given: full dragon,
         2**20 incoherent rays, two threads, closest / any hit, 3.16 / 3.34 Mrays/s as given
         against 2.88 / 2.97 sorted, and 2.71 / 2.78 and 2.77 / 2.86 for the single walk
         (medians of 7 interleaved rounds). So the binary walks' rays are sorted only without

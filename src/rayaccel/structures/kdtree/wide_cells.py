@@ -15,8 +15,14 @@ get no slot (an inner cell with one empty child is its other child), so no
 ray enters one, as with ``skip_empty``.
 
 The cells are those the binary walks use (:func:`.layout.node_cells`: each
-child reaches across its plane's float32 bracket), rounded outwards to float32
-by the wide records, so that a ray enters every cell the binary walk enters.
+child reaches across its plane's float32 bracket), grown by the BVH's rounding
+margin and rounded outwards to float32 by the wide records. The margin matters
+where a plane passes through a vertex, as the perfect splits' planes do: a ray
+aimed at the vertex meets the triangles on either side at the same point, but
+their computed distances differ in the last bits, and the cell beyond the plane
+must not be skipped as starting past the hit found in the cell before it (a
+case the tests met). A ray so enters every cell the binary walk enters, and
+those within the margin of it.
 The primitives kept apart (``large_apart``) are a leaf beside the root's cell
 under a root around both: the first child an any-hit walk takes, at the cost
 of one more box in the root's test.
@@ -35,6 +41,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..._jit import kernel
+from ..bvh.accelerator import _padding
 from ..bvh.layout import pack_nodes
 from ..bvh.nodes import node_depths
 from ..bvh.wide import wide_records, wide_tree
@@ -169,5 +176,8 @@ def cell_hierarchy(kd, apart_first: int, apart_count: int, apart_box: np.ndarray
         return None
     box, first, count = _binary_cells(kd.lo, kd.hi, *kd.walk_records, apart_first, apart_count,
                                       np.ascontiguousarray(apart_box, dtype=np.float64))
+    pad = _padding(box)
+    box[:, :3] -= pad
+    box[:, 3:] += pad
     records = wide_records(box, first, count, wide_tree(box, first, count))
     return CellHierarchy(records, pack_nodes(box[:1], first[:1], count[:1]), int(node_depths(first, count).max()))
