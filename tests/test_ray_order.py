@@ -88,7 +88,7 @@ def test_the_eight_wide_bvh_traces_rays_as_given(small_dragon, incoherent_batch,
 
 
 def test_structures_within_half_the_cache_trace_rays_as_given(small_dragon, incoherent_batch, monkeypatch):
-    accel = ra.build(small_dragon, "kdtree", interleave=False)
+    accel = ra.build(small_dragon, "kdtree", width=2, interleave=False)
     batch = prepare_rays(*incoherent_batch)
     size = accel.stats()["bytes"]
     monkeypatch.setattr(ray_order, "last_level_cache_bytes", lambda: 2 * size)
@@ -100,12 +100,14 @@ def test_structures_within_half_the_cache_trace_rays_as_given(small_dragon, inco
 
 
 def test_kdtree_keeping_rays_in_flight_traces_them_as_given(small_dragon, incoherent_batch, monkeypatch):
-    """Rays in flight per thread hide the waits that sorting would: the kd-tree sorts a large
-    incoherent batch only with ``interleave=False``."""
+    """Rays in flight per thread hide the waits that sorting would: the kd-tree's binary walk sorts
+    a large incoherent batch only with ``interleave=False``; its cells walked eight-wide, as the
+    BVH's eight-wide walk, never."""
     monkeypatch.setattr(ray_order, "last_level_cache_bytes", lambda: 1024)
     batch = prepare_rays(*incoherent_batch)
-    assert ra.build(small_dragon, "kdtree")._ordered(batch, True) is batch
-    assert ra.build(small_dragon, "kdtree", interleave=False)._ordered(batch, True) is not batch
+    assert ra.build(small_dragon, "kdtree", width=2)._ordered(batch, True) is batch
+    assert ra.build(small_dragon, "kdtree", width=2, interleave=False)._ordered(batch, True) is not batch
+    assert ra.build(small_dragon, "kdtree", interleave=False)._ordered(batch, True) is batch
 
 
 def test_cache_sizes_are_read():
