@@ -349,8 +349,9 @@ def _wide_leaf_boxes(records):
 def test_kdtree_cells_walked_eight_wide_are_its_nonempty_leaves(scene_name, options, request):
     """The eight-wide records of a kd-tree (:mod:`rayaccel.structures.kdtree.wide_cells`) hold each
     leaf that holds references once, no empty one, every node reached once, in a box around the
-    leaf's cell within a hair (the rounding margin and float32's rounding); the primitives kept apart are the first child
-    of the root, in their box, and the binary walk's cells give the same answers."""
+    leaf's cell within a hair (the rounding margin and float32's rounding); the primitives kept
+    apart are the first child of the root, in their box, and the binary walk's cells give the same
+    answers."""
     scene = ground_and_clutter() if scene_name == "ground_and_clutter" else request.getfixturevalue(scene_name)
     accel = ra.build(scene, "kdtree", **options)
     kd, records = accel.kd, accel.cells.records

@@ -70,6 +70,7 @@ _WIDE_WALKS = {NEAREST: wide_nearest_kernel, COUNT: wide_count_kernel}
 # 1.11 / 1.05; the full dragon (58 MiB) 1.35 / 1.40 (README, "Library").
 _INTERLEAVE_CACHES = 13
 
+
 def wide_stacks(rows: int, depth: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``rows`` stacks deep enough for the eight-wide walks of a binary tree ``depth`` deep (each
     wide node pushes at most seven entries): the entries' links, primitive counts and entry
@@ -110,7 +111,6 @@ def trace_wide(records, root_record, prim_order, kind, geometry, depth, batch, a
     walk = _WIDE_WALKS.get(action.mode, wide_crossings_kernel)
     return walk_rays(walk, n_rays, root_record, *tree, *batch, any_hit, *wide_stacks(rows, depth),
                      child_entry_rows(rows), action, work)
-
 
 
 # Node volumes are grown by this fraction of the scene's size (coordinates

@@ -1,16 +1,15 @@
 """The kd-tree's cells collapsed eight to a node, for the eight-wide walks of the BVH.
 
 A kd-tree's cells are boxes that tile its root box, so the tree is also a
-hierarchy of boxes: a cell's children split it at a plane. Collapsed like a
-BVH (:mod:`rayaccel.structures.bvh.wide`), a node holds up to eight cells from
-the three or so levels of planes below it, and a ray tests the eight at once
-in vector lanes (:mod:`rayaccel.structures.bvh.wide_slab`). That is the
-multi-level kd-tree node of Reshetov, Soupikov & Hurley ("Multi-Level Ray
-Tracing Algorithm", ACM TOG 24(3), 2005) in SIMD form: the several planes of
-a node tested together, the cells entered taken front to back by their entry
-distance. The ray visits the cells the binary walk visits, in the same order
-(the cells do not overlap), but it takes three levels per step instead of
-one, and its next step no longer waits for each plane's choice. Empty leaves
+hierarchy of boxes: a cell's children split it at a plane. Collapsed as a
+binary BVH is into a wide one (Dammertz, Hanika & Keller 2008; Ernst &
+Greiner 2008; :mod:`rayaccel.structures.bvh.wide`), a node holds up to eight
+cells from the three or so levels of planes below it, and a ray tests the
+eight at once in vector lanes (:mod:`rayaccel.structures.bvh.wide_slab`) and
+takes those it enters front to back by their entry distance. The ray visits
+the cells the binary walk visits, in the same order (the cells do not
+overlap), but it takes three levels per step instead of one, and its next step
+no longer waits for each plane's choice. Empty leaves
 get no slot (an inner cell with one empty child is its other child), so no
 ray enters one, as with ``skip_empty``.
 
