@@ -186,9 +186,9 @@ class KdTree(Accelerator):
         eight-wide walks of the BVH: the same cells in the same order as the binary walk,
         three levels of planes a step. Against the binary walks of the same tree, same
         answers (2026-12-06, medians of 7 interleaved rounds): forest-small-chair (one
-        thread) incoherent rays 1.73 / 1.69 times as fast (closest / any hit), camera
-        rays 2.05 / 3.01, shadow rays 1.41 / 1.55; the full dragon (two threads) 1.58 /
-        1.63, 1.64 / 1.73 and 1.37 / 1.40. 2 walks the binary tree one plane a step, as
+        thread) incoherent rays 1.54 / 1.50 times as fast (closest / any hit), camera
+        rays 2.08 / 3.02, shadow rays 1.44 / 1.51; the full dragon (two threads) 1.54 /
+        1.74, 1.59 / 1.81 and 1.49 / 1.46. 2 walks the binary tree one plane a step, as
         the lecture's traversal does (:mod:`.traverse`); the counting and collecting
         queries, which must meet each primitive once per ray, always do. Statistics
         describe the binary tree; the node counter counts the nodes walked.
