@@ -400,7 +400,7 @@ class KdTree(Accelerator):
             return trace_wide(cells.records, cells.root_record, self.refs, self.scene.kind, self.geometry, cells.depth,
                               batch, any_hit, action, work, packets=self.options.get("packets", True),
                               interleave=self.options.get("interleave", True), scene_box=self.scene_box,
-                              nbytes=self.nbytes)
+                              nbytes=cells.nbytes + self.refs.nbytes + layout_nbytes(self.geometry))
         k = self.kd
         rows = numba.config.NUMBA_NUM_THREADS
         n_rays = len(batch.origins)
