@@ -48,6 +48,17 @@ def test_batches_that_are_not_images_are_walked_as_given(spheres):
     assert image_row_length(tiles) == 0
 
 
+def test_an_image_with_rays_left_out_is_not_taken_for_one(spheres):
+    """A camera's rays with a patch in the middle of the image left out (those that meet an object,
+    say) keep their first rows whole, but their later rows no longer start where the first row's
+    length says: tiles there would pair rays from far apart. Whole rows left out keep an image."""
+    directions = image_rays(spheres, 64, 48)[1].reshape(48, 64, 3)
+    patch = np.zeros((48, 64), dtype=bool)
+    patch[20:30, 24:40] = True
+    assert image_row_length(directions[~patch]) == 0
+    assert image_row_length(directions[np.r_[0:20, 30:48]].reshape(-1, 3)) == 64
+
+
 @pytest.mark.parametrize("row_length", [8, 32, 1024])
 def test_tile_order_visits_every_ray_of_whole_row_pairs_once(row_length):
     n = 3 * TILE_ROWS * row_length
