@@ -20,8 +20,9 @@ from rayaccel.geometry.gather import corner
 from rayaccel.geometry.primitive import ray_setup
 from rayaccel.geometry.triangle import intersect_triangle
 from rayaccel.ray_order import MIN_PACKET_RAYS, lane_packets_pay, packets_pay
+from rayaccel.ray_tiles import image_row_length
 from rayaccel.rays import prepare_rays
-from rayaccel.structures.bvh import accelerator
+from rayaccel.structures.bvh import accelerator, traverse_packet
 from rayaccel.structures.bvh.packet_slab import PACKET, PACKET_ROWS, enter_children_by_lane
 from rayaccel.structures.bvh.packet_triangle import (
     HIT_ROW,
@@ -93,6 +94,39 @@ def test_camera_spans_that_miss_the_scene_match_brute_force(small_dragon, limits
     np.testing.assert_array_equal(packets.occluded(origins, directions, t_min, t_max),
                                   brute.occluded(origins, directions, t_min, t_max))
     assert_counts_and_lists_match(brute, packets, origins, directions)
+
+
+def test_camera_rays_with_a_patch_left_out_match_brute_force(small_dragon, monkeypatch):
+    """A wide camera's rays that miss the model's box and those that meet it, each batch without
+    the others: no longer an image (:func:`rayaccel.ray_tiles.image_row_length`), they go in packets
+    of consecutive rays, and a packet that straddles the patch left out (the end of one row and the
+    start of the next beside it) is walked ray by ray (:func:`.traverse_packet._lanes_jump`); the
+    same hits as brute force, closest, any hit, counts and lists."""
+    b = small_dragon.bounds()
+    origins, directions = ra.Camera.framing(b.scene_lo, b.scene_hi, fov=70.0).rays(128, 96)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        near, far = (b.scene_lo - origins) / directions, (b.scene_hi - origins) / directions
+    meets = np.nanmax(np.minimum(near, far), axis=1) <= np.nanmin(np.maximum(near, far), axis=1)
+    straddles = []
+    jumps = traverse_packet._lanes_jump
+    walks = []
+    walk_rays = accelerator.walk_rays
+    monkeypatch.setattr(accelerator, "walk_rays", lambda walk, *args, **options: walks.append(walk.__name__)
+                        or walk_rays(walk, *args, **options))
+    for part in (~meets, meets):
+        o, d = np.ascontiguousarray(origins[part]), np.ascontiguousarray(directions[part])
+        assert image_row_length(d) == 0 and packets_pay(prepare_rays(o, d), b.scene_lo, b.scene_hi)
+        straddles.append(sum(jumps(d, first, first + 4) for first in range(0, len(d) - 7, 8)))
+        walks.clear()
+        brute, packets = ra.build(small_dragon, "none"), ra.build(small_dragon, "bvh-binned")
+        assert_same_hits(brute.intersect(o, d), packets.intersect(o, d))
+        np.testing.assert_array_equal(packets.occluded(o, d), brute.occluded(o, d))
+        assert walks == ["wide_packet_kernel"] * 2
+        assert_counts_and_lists_match(brute, packets, o, d)
+    assert all(count > 10 for count in straddles)
+    row = directions[:8]
+    assert not jumps(row, 0, 4) and not jumps(directions, 0, 128)
+    assert jumps(np.vstack((directions[124:128], directions[128:132])), 0, 4)
 
 
 def shadow_rays(scene, side):
