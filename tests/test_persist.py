@@ -271,3 +271,29 @@ def test_a_kd_tree_keeps_its_primitives_apart_through_a_file(tmp_path):
     older = ra.load_accelerator(tmp_path / "older.npz")
     assert len(older.apart_prims) == 0
     _assert_identical(older.intersect(origins, directions), expected)
+
+
+def test_a_kd_tree_keeps_its_width_through_a_file(small_dragon, tmp_path):
+    """The width a kd-tree is walked at comes back from its file, its cells derived again for width 8
+    (:mod:`rayaccel.structures.kdtree.wide_cells`); a file written before the option walks eight-wide
+    unless it enters empty leaves (the lecture's tree), and a width the tree cannot take is refused."""
+    origins, directions = random_rays(small_dragon, 1500, seed=6)
+    for options in ({}, {"width": 2}, {"width": 2, "skip_empty": False}):
+        accel = ra.build(small_dragon, "kdtree", **options)
+        accel.save(tmp_path / "kd.npz")
+        loaded = ra.load_accelerator(tmp_path / "kd.npz")
+        assert loaded.options == accel.options
+        assert (loaded.cells is None) == (accel.cells is None)
+        if accel.cells is not None:
+            np.testing.assert_array_equal(loaded.cells.records, accel.cells.records)
+        _assert_identical(accel.intersect(origins, directions, counters=True),
+                          loaded.intersect(origins, directions, counters=True))
+        header, arrays = _read((tmp_path / "kd.npz").read_bytes())
+        del header["state"]["options"]["width"]
+        _write(tmp_path / "older.npz", header, arrays)
+        assert ra.load_accelerator(tmp_path / "older.npz").options["width"] == (2 if "skip_empty" in options else 8)
+    for width, skip_empty in ((4, True), (True, True), (8, False)):
+        header["state"]["options"].update(width=width, skip_empty=skip_empty)
+        _write(tmp_path / "bad.npz", header, arrays)
+        with pytest.raises(CorruptFileError, match="width"):
+            ra.load_accelerator(tmp_path / "bad.npz")

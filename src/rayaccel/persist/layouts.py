@@ -270,6 +270,13 @@ def _save_kdtree(accel):
 
 
 def _load_kdtree(accel, meta, arrays):
+    options = accel.options
+    if "width" not in options:  # a file from before the option: eight-wide, unless it walks into empty leaves
+        options["width"] = WIDTH if options.get("skip_empty", True) else 2
+    c.require(options["width"] in (2, WIDTH) and not isinstance(options["width"], bool),
+              f"option width must be 2 or {WIDTH}")
+    c.require(options["width"] == 2 or options.get("skip_empty", True) is not False,
+              "option skip_empty=False needs width=2")
     lo, hi = _box3(arrays, "kd")
     split = c.array(arrays, "kd.node_split", np.float64, (None,))
     n = len(split)
