@@ -9,9 +9,9 @@ eight at once in vector lanes (:mod:`rayaccel.structures.bvh.wide_slab`) and
 takes those it enters front to back by their entry distance. The ray visits
 the cells the binary walk visits, in the same order (the cells do not
 overlap), but it takes three levels per step instead of one, and its next step
-no longer waits for each plane's choice. Empty leaves
-get no slot (an inner cell with one empty child is its other child), so no
-ray enters one, as with ``skip_empty``.
+no longer waits for each plane's choice. Empty leaves get no slot (an inner
+cell with one empty child is its other child), so no ray enters one, as with
+``skip_empty``.
 
 The cells are those the binary walks use (:func:`.layout.node_cells`: each
 child reaches across its plane's float32 bracket), grown by the BVH's rounding
@@ -22,6 +22,7 @@ their computed distances differ in the last bits, and the cell beyond the plane
 must not be skipped as starting past the hit found in the cell before it (a
 case the tests met). A ray so enters every cell the binary walk enters, and
 those within the margin of it.
+
 The primitives kept apart (``large_apart``) are a leaf beside the root's cell
 under a root around both: the first child an any-hit walk takes, at the cost
 of one more box in the root's test.
