@@ -33,7 +33,7 @@ from ..structures.hgrid.accelerator import HierarchicalGrid
 from ..structures.hgrid.layout import HierarchicalGridArrays
 from ..structures.hybrid.accelerator import GridBvh
 from ..structures.hybrid.layout import GridBvhArrays
-from ..structures.kdtree.accelerator import KdTree
+from ..structures.kdtree.accelerator import KdTree, width_problem
 from ..structures.kdtree.layout import LEAF, KdTreeArrays
 from ..structures.none import BruteForce
 from ..structures.octree.accelerator import Octree
@@ -273,10 +273,8 @@ def _load_kdtree(accel, meta, arrays):
     options = accel.options
     if "width" not in options:  # a file from before the option: eight-wide, unless it walks into empty leaves
         options["width"] = WIDTH if options.get("skip_empty", True) else 2
-    c.require(options["width"] in (2, WIDTH) and not isinstance(options["width"], bool),
-              f"option width must be 2 or {WIDTH}")
-    c.require(options["width"] == 2 or options.get("skip_empty", True) is not False,
-              "option skip_empty=False needs width=2")
+    problem = width_problem(options["width"], options.get("skip_empty", True))
+    c.require(problem is None, f"option {problem}")
     lo, hi = _box3(arrays, "kd")
     split = c.array(arrays, "kd.node_split", np.float64, (None,))
     n = len(split)

@@ -31,7 +31,7 @@ from .traverse_interleaved import SLOT_FLOATS, SLOT_INTS, SLOTS, interleaved_clo
 from .traverse_packet import PACKET, PACKET_ROWS, kdtree_packet_kernel
 from .wide_cells import cell_hierarchy
 
-__all__ = ["KdTree", "ROWS_BYTES_PER_TRIANGLE"]
+__all__ = ["KdTree", "ROWS_BYTES_PER_TRIANGLE", "width_problem"]
 
 _MAX_PRIMS = 1 << 28  # leaf counts are stored as count << 2 in an int32
 _ROW_BYTES = 9 * 4  # a triangle's three corners in float32
@@ -113,6 +113,17 @@ def _exact_batch(tasks, params, defer_below=0):
                                        np.concatenate(([0], np.cumsum(sizes))), np.array([task[3] for task in tasks]),
                                        np.array([task[4] for task in tasks], dtype=np.int64), *params, defer_below)
     return (*forest, len(tasks)), [task[0] for task in tasks], list(deferred)
+
+
+def width_problem(width, skip_empty) -> str | None:
+    """Why a kd-tree cannot be walked at ``width`` with ``skip_empty`` (the build's and a file's
+    check), or ``None`` when it can."""
+    if width not in (2, WIDTH) or isinstance(width, bool):
+        return f"width must be 2 or {WIDTH}, got {width!r}"
+    if width == WIDTH and not skip_empty:
+        return (f"skip_empty=False walks into empty leaves, which only the binary walks have: pass width=2 with it "
+                f"(the width {WIDTH} walk never enters an empty leaf)")
+    return None
 
 
 def _tree_depth(kd: KdTreeArrays) -> int:
@@ -243,17 +254,16 @@ class KdTree(Accelerator):
             "bins": check_number("bins", bins, integer=True, minimum=2, inclusive=True, maximum=4096),
             "exact_below": check_number("exact_below", exact_below, integer=True, inclusive=True),
         }
-        if width not in (2, WIDTH) or isinstance(width, bool):
-            raise ValueError(f"width must be 2 or {WIDTH}, got {width!r}")
-        if width == WIDTH and not check_flag("skip_empty", skip_empty):
-            raise ValueError(f"skip_empty=False walks into empty leaves, which only the binary walks have: pass "
-                             f"width=2 with it (the width {WIDTH} walk never enters an empty leaf)")
+        skip_empty = check_flag("skip_empty", skip_empty)
+        problem = width_problem(width, skip_empty)
+        if problem:
+            raise ValueError(problem)
         threads = thread_count() if threads is None else check_number("threads", threads, integer=True, minimum=1,
                                                                        inclusive=True)
         super().__init__(scene, {**options, "width": width, "packets": check_flag("packets", packets),
                                  "interleave": check_flag("interleave", interleave),
                                  "large_apart": check_flag("large_apart", large_apart),
-                                 "skip_empty": check_flag("skip_empty", skip_empty)})
+                                 "skip_empty": skip_empty})
         start = time.perf_counter()
         self.kd, self.apart_prims = self._build(scene, threads, large_apart, **options)
         self.build_seconds = time.perf_counter() - start

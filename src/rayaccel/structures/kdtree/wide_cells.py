@@ -39,6 +39,8 @@ the dragon's build.
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 
 from ..._jit import kernel
@@ -117,23 +119,23 @@ def _binary_cells(lo, hi, planes, words, apart_first, apart_count, apart_box):
     n_pending = 0
     size = 1
     root = _past_single_children(words, empty, 0)
-    if apart_count == 0 or not empty[root]:
-        box[0] = cells[root]
-        pending_new[0], pending_node[0] = 0, root
-        n_pending = 1
+    tree_row = 0
     if apart_count > 0:
-        apart_row = 1 if n_pending else 0
+        apart_row = 0
+        if not empty[root]:
+            first[0] = 1
+            apart_row, tree_row, size = 1, 2, 3
         box[apart_row, :3] = apart_box[0]
         box[apart_row, 3:] = apart_box[1]
         first[apart_row] = apart_first
         count[apart_row] = apart_count
-        if n_pending:
-            box[2] = cells[root]
-            box[0, :3] = np.minimum(box[1, :3], box[2, :3])
-            box[0, 3:] = np.maximum(box[1, 3:], box[2, 3:])
-            first[0] = 1
-            pending_new[0] = 2
-            size = 3
+    if not empty[root]:
+        box[tree_row] = cells[root]
+        pending_new[0], pending_node[0] = tree_row, root
+        n_pending = 1
+    if size == 3:
+        box[0, :3] = np.minimum(box[1, :3], box[2, :3])
+        box[0, 3:] = np.maximum(box[1, 3:], box[2, 3:])
     while n_pending > 0:
         n_pending -= 1
         new = pending_new[n_pending]
@@ -154,15 +156,14 @@ def _binary_cells(lo, hi, planes, words, apart_first, apart_count, apart_box):
     return box[:size], first[:size], count[:size]
 
 
-class CellHierarchy:
+class CellHierarchy(NamedTuple):
     """The tree's cells as eight-wide records (:mod:`rayaccel.structures.bvh.wide`):
     ``records``, ``root_record`` (the whole hierarchy's box, as the walks take it) and the
     depth of the binary hierarchy, which sizes the walks' stacks."""
 
-    def __init__(self, records: np.ndarray, root_record: np.ndarray, depth: int):
-        self.records = records
-        self.root_record = root_record
-        self.depth = depth
+    records: np.ndarray
+    root_record: np.ndarray
+    depth: int
 
     @property
     def nbytes(self) -> int:
