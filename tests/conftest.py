@@ -17,6 +17,14 @@ import rayaccel as ra  # noqa: E402
 settings.register_profile("long", max_examples=2000, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 
 
+def examples(ci_count: int) -> int:
+    """A property test's ``max_examples``: ``ci_count``, or the long profile's count when that profile
+    is loaded. A count given in ``@settings`` overrides the loaded profile's, so without this the long
+    profile ran each test's CI count."""
+    long_count = settings.get_profile("long").max_examples
+    return long_count if settings.default.max_examples == long_count else ci_count
+
+
 @pytest.fixture(scope="session")
 def bunny():
     return ra.load_scene("bunny")

@@ -13,6 +13,7 @@ from conftest import (
     assert_same_hits,
     axis_parallel_rays,
     camera_rays,
+    examples,
     random_rays,
     vertex_and_edge_rays,
 )
@@ -135,7 +136,7 @@ def test_reinsertion_moves_subtrees_without_raising_the_sah_cost(small_dragon, m
     assert ra.build(small_dragon, method).options["reinsertion"] == (method == "bvh-binned")
 
 
-@settings(max_examples=60, deadline=None)
+@settings(max_examples=examples(60), deadline=None)
 @given(n=st.integers(1, 5000), batch=st.integers(1, 300), levels=st.integers(1, 50), seed=st.integers(0, 2**31))
 def test_reinsertion_picks_the_largest_measures(n, batch, levels, seed):
     """The nodes reinsertion moves are the ``batch`` largest non-negative measures, largest first,
@@ -267,7 +268,7 @@ def test_counters(small_dragon):
     assert (hits.counters.mailbox_skips == 0).all()
 
 
-@settings(max_examples=30, deadline=None)
+@settings(max_examples=examples(30), deadline=None)
 @given(
     n=st.integers(1, 80),
     seed=st.integers(0, 2**16),
@@ -323,7 +324,7 @@ def _wide_node(lo, hi, used):
     return records, np.hstack([lo, hi]).astype(np.float64), bound
 
 
-@settings(max_examples=80, deadline=None)
+@settings(max_examples=examples(80), deadline=None)
 @given(seed=st.integers(0, 2**32 - 1), zero_axes=st.sets(st.integers(0, 2)), on_plane=st.booleans(),
        scale=st.sampled_from([1e-20, 1e-3, 1.0, 1e7, 1e20]), length=st.sampled_from([1e-30, 1e-3, 1.0, 1e9, 1e30]),
        t_min=st.sampled_from([0.0, 0.25, -1.0]), t_max=st.sampled_from([np.inf, 1.5, 0.3]))

@@ -8,7 +8,7 @@ from unittest.mock import patch
 
 import numpy as np
 import pytest
-from conftest import assert_same_hits, axis_parallel_rays, camera_rays, random_rays, vertex_and_edge_rays
+from conftest import assert_same_hits, axis_parallel_rays, camera_rays, examples, random_rays, vertex_and_edge_rays
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from test_packets import shadow_rays
@@ -130,7 +130,7 @@ FORCED_WALKS = {
 }
 
 
-@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@settings(max_examples=examples(25), deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(data=st.data(), walk=st.sampled_from(list(FORCED_WALKS)))
 def test_generated_scenes_and_float32_rays_match_their_float64_copy(data, walk):
     """Generated lattice scenes (degenerate, duplicated and axis-aligned triangles, scales from

@@ -8,6 +8,7 @@ from conftest import (
     assert_same_hits,
     axis_parallel_rays,
     camera_rays,
+    examples,
     random_rays,
     vertex_and_edge_rays,
 )
@@ -130,7 +131,7 @@ def test_cost_model_resolution_matches_the_formula(spheres):
     assert 0.6 * expected < grid.stats()["nodes"] < 1.6 * expected
 
 
-@settings(max_examples=25, deadline=None)
+@settings(max_examples=examples(25), deadline=None)
 @given(
     n=st.integers(1, 60),
     seed=st.integers(0, 2**16),

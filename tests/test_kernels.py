@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from conftest import examples
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -38,7 +39,7 @@ def test_watertight_towards_every_vertex_and_edge(mesh_name, method):
         assert hits.hit.all(), f"{(~hits.hit).sum()} rays escaped the closed mesh"
 
 
-@settings(max_examples=30, deadline=None)
+@settings(max_examples=examples(30), deadline=None)
 @given(origin=st.tuples(*[st.floats(0.05, 0.95)] * 3))
 def test_cube_is_watertight_from_any_inside_point(origin):
     mesh = cube_mesh()

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from conftest import assert_same_hits
+from conftest import assert_same_hits, examples
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -122,7 +122,7 @@ def triangle_scene_rays(draw, lattice, faces, n):
     return origins, np.where(rng.random((n, 1)) < 0.75, steps, rng.normal(size=(n, 3)))
 
 
-@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@settings(max_examples=examples(60), deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(data=st.data(), variant=st.sampled_from(VARIANTS))
 def test_generated_triangle_scenes_agree_with_brute_force(data, variant):
     mesh, to_world, lattice, faces = data.draw(triangle_scenes())
@@ -136,7 +136,7 @@ def test_generated_triangle_scenes_agree_with_brute_force(data, variant):
            t_max[assume_nonzero], variant)
 
 
-@settings(max_examples=30, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@settings(max_examples=examples(30), deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(data=st.data(), variant=st.sampled_from(VARIANTS))
 def test_generated_sphere_scenes_agree_with_brute_force(data, variant):
     spheres, scale = data.draw(sphere_scenes())

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from conftest import axis_parallel_rays, camera_rays, random_rays, vertex_and_edge_rays
+from conftest import axis_parallel_rays, camera_rays, examples, random_rays, vertex_and_edge_rays
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -181,7 +181,7 @@ def test_parity_on_the_closed_icosphere(closed_sphere_mesh):
                 assert (counts == 1).all()
 
 
-@settings(max_examples=40, deadline=None)
+@settings(max_examples=examples(40), deadline=None)
 @given(st.lists(st.integers(-24, 24), min_size=6, max_size=6))
 def test_parity_property_on_dyadic_rays(coordinates):
     """Origins and targets on a lattice of 1/8: rays through vertices, edges and faces of the cut cube."""

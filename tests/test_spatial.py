@@ -9,6 +9,7 @@ from conftest import (
     assert_same_hits,
     axis_parallel_rays,
     camera_rays,
+    examples,
     ground_and_clutter,
     random_rays,
     vertex_and_edge_rays,
@@ -171,7 +172,7 @@ def _rays_at_vertices_beside_planes(accel, vertices, faces, rng):
     return np.array(origins).reshape(-1, 3), np.array(directions).reshape(-1, 3)
 
 
-@settings(max_examples=20, deadline=None)
+@settings(max_examples=examples(20), deadline=None)
 @given(n=st.integers(2, 400), seed=st.integers(0, 2**16), exact_below=st.sampled_from([0, 64]))
 def test_kdtree_rays_within_a_float32_step_of_float64_planes_property(n, seed, exact_below):
     """The kd-tree keeps each plane rounded down to float32 and walks a bracket one float32 step
@@ -258,7 +259,7 @@ def test_kdtree_invariants(closed_sphere_mesh, exact_below):
     assert stats["max_depth"] <= round(8 + 1.3 * np.log2(len(scene)))
 
 
-@settings(max_examples=40, deadline=None)
+@settings(max_examples=examples(40), deadline=None)
 @given(n=st.integers(1, 400), seed=st.integers(0, 2**16), grid=st.sampled_from([0.0, 4.0, 1e6]))
 def test_kdtree_events_sorted_by_position_then_type(n, seed, grid):
     rng = np.random.default_rng(seed)
@@ -546,7 +547,7 @@ def test_statistics_are_consistent(small_dragon):
         assert stats["avg_nodes_per_ray"] >= 1
 
 
-@settings(max_examples=25, deadline=None)
+@settings(max_examples=examples(25), deadline=None)
 @given(n=st.integers(1, 60), seed=st.integers(0, 2**16), method=st.sampled_from(SPATIAL))
 def test_random_triangle_soups_property(n, seed, method):
     rng = np.random.default_rng(seed)
