@@ -163,15 +163,13 @@ class PointQueries:
         methods return their own tree."""
         cache = getattr(self, "_winding_cache", None)
         if cache is None:
-            from .bvh.accelerator import _padding, _top_down
+            from .bvh.accelerator import _top_down
             from .bvh.build_top_down import SAH_BINNED
             from .bvh.fast_winding import winding_moments
-            from .bvh.nodes import node_depths
+            from .bvh.nodes import grow_by_rounding_margin, node_depths
 
             box, first, count, order = _top_down(self.scene.bounds(), SAH_BINNED, 8, 3.0, 1.0, bins=16)
-            pad = _padding(box)
-            box[:, :3] -= pad
-            box[:, 3:] += pad
+            grow_by_rounding_margin(box)
             geometry = self.scene.gather(order)
             moments = winding_moments(self.scene.kind, geometry, box, first, count)
             cache = (box, first, count, geometry, moments, int(node_depths(first, count).max()))

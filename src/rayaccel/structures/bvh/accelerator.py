@@ -23,7 +23,7 @@ from .build_top_down import MORTON, OBJECT_MEDIAN, SAH_BINNED, SAH_SWEEP, SPATIA
 from .fast_winding import winding_moments
 from .layout import BvhArrays, node_rows, pack_nodes
 from .nearest import bvh_nearest_kernel
-from .nodes import box_surface_areas, node_depths, sah_cost
+from .nodes import box_surface_areas, grow_by_rounding_margin, node_depths, sah_cost
 from .packet_slab import BOUND_VALUES, PACKET
 from .refit import refit_bvh, refit_geometry_boxes
 from .reinsertion import reinsert_subtrees
@@ -111,17 +111,6 @@ def trace_wide(records, root_record, prim_order, kind, geometry, depth, batch, a
     walk = _WIDE_WALKS.get(action.mode, wide_crossings_kernel)
     return walk_rays(walk, n_rays, root_record, *tree, *batch, any_hit, *wide_stacks(rows, depth),
                      child_entry_rows(rows), action, work)
-
-
-# Node volumes are grown by this fraction of the scene's size (coordinates
-# included): the slab test's rounding, about 1e-16 of the coordinates, can then
-# never cull a node that a ray only touches, such as one at a vertex it aims at.
-_ROUNDING_PAD = 1e-11
-
-
-def _padding(node_box):
-    """The rounding margin for a tree whose root box is ``node_box[0]``."""
-    return _ROUNDING_PAD * float(np.abs(node_box[0]).max() + (node_box[0, 3:] - node_box[0, :3]).max())
 
 
 class BoundingVolumeHierarchy(Accelerator):
@@ -220,9 +209,7 @@ class BoundingVolumeHierarchy(Accelerator):
                                                **builder_options)
         if reinsertion:
             box, first, count, order = reinsert_subtrees(box, first, count, order)
-        pad = _padding(box)
-        box[:, :3] -= pad
-        box[:, 3:] += pad
+        pad = grow_by_rounding_margin(box)
         self.geometry = scene.gather(order)
         self.bounds_kind = _BOUNDS[bounds]
         self._pack_for_traversal(box, first, count, order, pad)
@@ -286,7 +273,7 @@ class BoundingVolumeHierarchy(Accelerator):
         new ``vertices`` (V, 3)), or spheres (same radii, new centres (N, 3)).
         ``stats()`` then shows ``sah_cost`` beside ``sah_cost_at_build``; when it has grown
         much, a fresh ``ra.build`` traces faster."""
-        refit_bvh(self, vertices, _padding)
+        refit_bvh(self, vertices)
 
     def _build(self, prim_bounds, max_leaf_size, traversal_cost, intersection_cost, **options):
         raise NotImplementedError

@@ -6,8 +6,29 @@ import numpy as np
 
 from ..._jit import kernel
 
-__all__ = ["box_area6", "longest_axis", "range_bounds", "swap_prims", "permute_prims", "compact", "close_gaps",
-           "node_depths", "box_surface_areas", "sah_cost"]
+__all__ = ["ROUNDING_MARGIN", "rounding_margin", "grow_by_rounding_margin", "box_area6", "longest_axis",
+           "range_bounds", "swap_prims", "permute_prims", "compact", "close_gaps", "node_depths", "box_surface_areas",
+           "sah_cost"]
+
+ROUNDING_MARGIN = 1e-11
+"""Node volumes are grown by this fraction of the scene's size (coordinates included): the slab
+test's rounding, about 1e-16 of the coordinates, can then never cull a node that a ray only
+touches, such as one at a vertex it aims at."""
+
+
+def rounding_margin(lo, hi) -> float:
+    """The margin node volumes are grown by in a scene whose box is ``lo``, ``hi``."""
+    lo, hi = np.asarray(lo), np.asarray(hi)
+    return ROUNDING_MARGIN * float(max(np.abs(lo).max(), np.abs(hi).max()) + (hi - lo).max())
+
+
+def grow_by_rounding_margin(node_box) -> float:
+    """Grow the boxes ``node_box`` (rows lo, hi) in place by the rounding margin of a tree whose root
+    box is ``node_box[0]``; returns the margin."""
+    pad = rounding_margin(node_box[0, :3], node_box[0, 3:])
+    node_box[:, :3] -= pad
+    node_box[:, 3:] += pad
+    return pad
 
 
 @kernel

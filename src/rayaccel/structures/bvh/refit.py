@@ -22,6 +22,7 @@ from numba import prange
 from ..._jit import kernel, parallel_kernel
 from ...geometry.bounds import primitive_extent
 from ...scene import Spheres, TriangleMesh
+from .nodes import grow_by_rounding_margin
 
 __all__ = ["refit_boxes", "refit_geometry_boxes", "refitted_scene", "refit_bvh"]
 
@@ -97,9 +98,9 @@ def refitted_scene(scene, vertices):
     return Spheres(vertices, scene.radii)
 
 
-def refit_bvh(accel, vertices, padding) -> None:
+def refit_bvh(accel, vertices) -> None:
     """Move ``accel`` (a built BVH) to the new positions ``vertices`` of its scene's primitives
-    and refit its boxes; ``padding(node_box)`` is the rounding margin its build adds."""
+    and refit its boxes, grown by the rounding margin as its build grew them."""
     start = time.perf_counter()
     if not hasattr(accel, "sah_cost_at_build"):
         accel.sah_cost_at_build = accel.sah_cost()
@@ -109,9 +110,7 @@ def refit_bvh(accel, vertices, padding) -> None:
     box = b.node_box
     refit_geometry_boxes(scene.kind, geometry, b.node_first, b.node_count, box)
     scene_lo, scene_hi = box[0, :3].copy(), box[0, 3:].copy()
-    pad = padding(box)
-    box[:, :3] -= pad
-    box[:, 3:] += pad
+    pad = grow_by_rounding_margin(box)
     accel.scene = scene
     accel.geometry = geometry
     accel.scene_box = scene_lo, scene_hi

@@ -14,6 +14,7 @@ from ...geometry.kinds import TRIANGLE
 from ...stats import box_area, surface_area_stats
 from ..actions import NEAREST
 from ..base import Accelerator, walk_rays
+from ..bvh.nodes import rounding_margin
 from ..bvh.wide import WIDTH, wide_records, wide_tree
 from ..bvh.wide_slab import child_entry_rows
 from ..grid.mailbox import MailboxPool
@@ -24,7 +25,6 @@ from .traverse import grid_bvh_crossings_kernel, grid_bvh_nearest_kernel
 __all__ = ["GridBvh"]
 
 _INSERT_MODES = ("bbox", "exact")
-_ROUNDING_PAD = 1e-11  # as for the BVH: node boxes grown by this fraction of the scene's size
 
 
 class GridBvh(Accelerator):
@@ -74,8 +74,7 @@ class GridBvh(Accelerator):
         super().__init__(scene, options)
         start = time.perf_counter()
         bounds = self._primitive_bounds()
-        pad = _ROUNDING_PAD * float(np.abs(np.concatenate((bounds.scene_lo, bounds.scene_hi))).max()
-                                    + (bounds.scene_hi - bounds.scene_lo).max())
+        pad = rounding_margin(bounds.scene_lo, bounds.scene_hi)
         self.hybrid, self.bvh_depth = build_grid_bvh(
             bounds, scene.kind, scene.geometry, options["density"], options["threshold"], options["max_leaf_size"],
             options["bins"], options["traversal_cost"], options["intersection_cost"], insert == "exact", pad)

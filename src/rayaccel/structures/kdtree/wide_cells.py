@@ -44,9 +44,8 @@ from typing import NamedTuple
 import numpy as np
 
 from ..._jit import kernel
-from ..bvh.accelerator import _padding
 from ..bvh.layout import pack_nodes
-from ..bvh.nodes import node_depths
+from ..bvh.nodes import grow_by_rounding_margin, node_depths
 from ..bvh.wide import wide_records, wide_tree
 from .layout import LEAF, leaf_first, node_cells, node_child, node_word
 
@@ -178,8 +177,6 @@ def cell_hierarchy(kd, apart_first: int, apart_count: int, apart_box: np.ndarray
         return None
     box, first, count = _binary_cells(kd.lo, kd.hi, *kd.walk_records, apart_first, apart_count,
                                       np.ascontiguousarray(apart_box, dtype=np.float64))
-    pad = _padding(box)
-    box[:, :3] -= pad
-    box[:, 3:] += pad
+    grow_by_rounding_margin(box)
     records = wide_records(box, first, count, wide_tree(box, first, count))
     return CellHierarchy(records, pack_nodes(box[:1], first[:1], count[:1]), int(node_depths(first, count).max()))
