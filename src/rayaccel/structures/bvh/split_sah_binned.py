@@ -55,8 +55,13 @@ def split_sah_binned(lo, hi, centroid, order, start, end, centroid_box, parent_a
 
     ``scratch_box`` (3 * bins, 6), ``scratch_count`` (3 * bins), ``scratch_area``
     (bins) and ``acc`` (6) are work arrays reused across nodes. All three axes
-    are binned in one pass over the primitives. A node with fewer primitives
-    than bins uses one bin per primitive, which costs less and loses nothing.
+    are binned in one pass over the primitives. A node of n primitives uses at most n / 2
+    bins: below 64 primitives the sweeps over the bins, not the binning, set a node's cost,
+    and bins that hold two primitives on average lose little (against one bin per primitive,
+    up to ``bins``: full dragon, CPU time of the whole build on one thread 0.885, on two 0.874,
+    wall time 0.469 -> 0.407 s, medians of 7 interleaved rounds; SAH cost dragon 91.04 -> 91.17,
+    forest-small-chair 43.67 -> 43.69, bunny 58.71 -> 58.82, armadillo 53.19 -> 53.30; at most
+    n / 4 bins: 0.843 of the CPU time, SAH cost up 1.0 % on the dragon and 1.1 % on the bunny).
     Returns ``(mid, cost)``, or ``(-1, inf)`` when all centroids coincide. After a cut,
     row 0 of ``child_bounds`` (2, 12) holds the left part's box and centroid box and row 1
     the right part's: the boxes are the unions of their bins', the centroid boxes grow
@@ -64,7 +69,7 @@ def split_sah_binned(lo, hi, centroid, order, start, end, centroid_box, parent_a
     to bound them (:func:`.build_top_down.build_subtrees`).
     """
     n = end - start
-    bins = min(bins, max(n, 2))
+    bins = min(bins, max(n // 2, 2))
     scale = np.zeros(3)
     for axis in range(3):
         extent = centroid_box[axis + 3] - centroid_box[axis]
