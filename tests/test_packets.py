@@ -23,7 +23,13 @@ from rayaccel.ray_order import MIN_PACKET_RAYS, lane_packets_pay, packets_pay
 from rayaccel.ray_tiles import image_row_length
 from rayaccel.rays import prepare_rays
 from rayaccel.structures.bvh import accelerator, traverse_packet
-from rayaccel.structures.bvh.packet_slab import PACKET, PACKET_ROWS, enter_children_by_lane
+from rayaccel.structures.bvh.packet_slab import (
+    LANE_SLAB_ROWS,
+    PACKET,
+    PACKET_ROWS,
+    enter_children_by_lane,
+    set_up_lane_slab,
+)
 from rayaccel.structures.bvh.packet_triangle import (
     HIT_ROW,
     NOT_SHARED,
@@ -34,6 +40,7 @@ from rayaccel.structures.bvh.packet_triangle import (
 )
 from rayaccel.structures.bvh.traverse_packet import LANE_ROWS, SPAN
 from rayaccel.structures.bvh.wide import WIDTH
+from rayaccel.structures.bvh.wide_slab import enter_children, slab_limits, slab_ray
 
 
 @pytest.fixture(params=["shared origin", "by lane"])
@@ -267,37 +274,68 @@ def test_walks_that_check_their_rays_refuse_unusable_ones(small_dragon, monkeypa
 
 
 @numba.njit
-def _lane_test(records, node, state, lanes, entry):
+def _lane_test(records, node, slabs, scales, lanes, entry):
     """The lane test called from Python. Not cached: Numba's cache checks only this file's time
     stamp, so a cached wrapper kept the old lane test compiled in after ``packet_slab`` changed
     (a mutation of the lane test passed)."""
-    return enter_children_by_lane(records, node, state, lanes, entry)
+    return enter_children_by_lane(records, node, slabs, scales, lanes, entry)
+
+
+@numba.njit
+def _set_up_lanes(origins, directions, t_max, reach, slabs, scales):
+    """Each ray's lane of ``slabs`` and ``scales``, as the lane packet walk sets them up."""
+    for r in range(PACKET):
+        set_up_lane_slab(slabs, scales, r, origins[r, 0], origins[r, 1], origins[r, 2], directions[r, 0],
+                         directions[r, 1], directions[r, 2], 1.0 / directions[r, 0], 1.0 / directions[r, 1],
+                         1.0 / directions[r, 2], reach[0], reach[1], reach[2], 0.0, t_max[r])
+
+
+@numba.njit
+def _single_test(records, node, origin, direction, t_max, reach, entry):
+    """The single-ray walk's test of one ray against wide ``node``'s children, and the scale of
+    its entry distances."""
+    ix, iy, iz = 1.0 / direction[0], 1.0 / direction[1], 1.0 / direction[2]
+    slab = slab_ray(origin[0], origin[1], origin[2], direction[0], direction[1], direction[2], ix, iy, iz, reach[0],
+                    reach[1], reach[2])
+    enter_from, exit_by = slab_limits(slab, 0.0, t_max)
+    entered = enter_children(records, node, 0 if ix >= 0.0 else 3, 1 if iy >= 0.0 else 4, 2 if iz >= 0.0 else 5,
+                             slab, enter_from, exit_by, entry)
+    return entered, slab[9]
 
 
 def test_lane_test_answers_each_lane_of_the_mask_as_alone(small_dragon):
     """The lane-by-lane box test skips the lanes outside its mask: for any mask it gives each lane
-    of the mask the children that lane gives alone, nothing for the others, and the nearest entry
-    of the lanes in the mask."""
+    of the mask the children that the single-ray walk's test gives that ray, nothing for the
+    others, and the nearest entry of the lanes in the mask along their rays. Some rays end
+    before the boxes they aim at."""
     accel = ra.build(small_dragon, "bvh-binned")
     rng = np.random.default_rng(7)
     origins, _ = random_rays(small_dragon, PACKET, seed=7)
     corners = small_dragon.vertices[small_dragon.faces[rng.integers(0, len(small_dragon.faces), PACKET)]]
     directions = corners.mean(axis=1) - origins
-    state = np.zeros(LANE_ROWS * PACKET)
-    state[:3 * PACKET] = origins.T.ravel()
-    state[3 * PACKET:6 * PACKET] = (1.0 / directions).T.ravel()
-    state[7 * PACKET:8 * PACKET] = np.inf
+    t_max = np.where(np.arange(PACKET) % 3 == 0, 0.5, np.inf)
+    reach = np.maximum(np.abs(accel.root_record[0, :3]), np.abs(accel.root_record[0, 3:6])).astype(np.float64)
+    slabs = np.zeros(LANE_SLAB_ROWS * PACKET, np.float32)
+    scales = np.zeros(2 * PACKET)
+    _set_up_lanes(origins, directions, t_max, reach, slabs, scales)
     entry = np.empty(WIDTH)
+    single_entry = np.empty(WIDTH, np.float32)
     tested = 0
     for node in range(len(accel.wide)):
-        if _lane_test(accel.wide, node, state, 0xFF, entry) == 0:
+        if _lane_test(accel.wide, node, slabs, scales, 0xFF, entry) == 0:
             continue
         alone, alone_entry = [], []
         for lane in range(PACKET):
-            alone.append((_lane_test(accel.wide, node, state, 1 << lane, entry) >> (8 * lane)) & 0xFF)
+            alone.append((_lane_test(accel.wide, node, slabs, scales, 1 << lane, entry) >> (8 * lane)) & 0xFF)
             alone_entry.append(entry.copy())
+            entered, scale = _single_test(accel.wide, node, origins[lane], directions[lane], t_max[lane], reach,
+                                          single_entry)
+            assert alone[lane] == entered
+            expected = np.where([entered >> c & 1 for c in range(WIDTH)], single_entry.astype(np.float64) * scale,
+                                np.inf)
+            assert np.array_equal(alone_entry[lane], expected)
         for lanes in rng.integers(0, 256, 24):
-            word = _lane_test(accel.wide, node, state, int(lanes), entry)
+            word = _lane_test(accel.wide, node, slabs, scales, int(lanes), entry)
             in_mask = [lane for lane in range(PACKET) if lanes >> lane & 1]
             assert word % (1 << 64) == sum(alone[lane] << (8 * lane) for lane in in_mask)
             nearest = np.min([np.full(WIDTH, np.inf)] + [alone_entry[lane] for lane in in_mask], axis=0)

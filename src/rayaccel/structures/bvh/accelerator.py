@@ -24,7 +24,7 @@ from .fast_winding import winding_moments
 from .layout import BvhArrays, node_rows, pack_nodes
 from .nearest import bvh_nearest_kernel
 from .nodes import box_surface_areas, grow_by_rounding_margin, node_depths, sah_cost
-from .packet_slab import BOUND_VALUES, PACKET
+from .packet_slab import BOUND_VALUES, LANE_SLAB_ROWS, PACKET
 from .refit import refit_bvh, refit_geometry_boxes
 from .reinsertion import reinsert_subtrees
 from .split_morton import morton_codes
@@ -99,8 +99,9 @@ def trace_wide(records, root_record, prim_order, kind, geometry, depth, batch, a
         elif lane_packets_pay(batch, *scene_box, sampled):
             walk = _LANE_PACKET_WALKS.get(action.mode, lane_packet_crossings_kernel)
     if walk is not None:
-        return walk_rays(walk, n_rays, *tree, *batch, any_hit, *wide_stacks(rows, depth), thread_rows((rows, WIDTH)),
-                         thread_rows((rows, LANE_ROWS * PACKET)), thread_rows((rows, BOUND_VALUES)),
+        return walk_rays(walk, n_rays, root_record, *tree, *batch, any_hit, *wide_stacks(rows, depth),
+                         thread_rows((rows, WIDTH)), thread_rows((rows, LANE_ROWS * PACKET)),
+                         thread_rows((rows, LANE_SLAB_ROWS * PACKET), np.float32), thread_rows((rows, BOUND_VALUES)),
                          thread_rows((rows, PACKET), np.int64), image_row_length(batch.directions, SPAN // TILE_ROWS),
                          action, align=SPAN)
     if interleave and interleaving_pays(batch, *scene_box, nbytes, sampled, caches=_INTERLEAVE_CACHES):

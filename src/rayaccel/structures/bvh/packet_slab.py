@@ -18,8 +18,8 @@ arithmetic over its rays):
   ray, in float64; the packet walk asks it of the leaves the packet enters, so that a ray
   tests only the primitives of leaves it enters itself.
 * :func:`enter_children_by_lane`: each ray of the packet against the eight child boxes,
-  the exact test lane after lane, for packets whose rays start apart (shadow rays),
-  where the interval bounds would cull little.
+  the single-ray walk's conservative float32 test lane after lane, for packets whose rays
+  start apart (shadow rays), where the interval bounds would cull little.
 
 All keep the exact test's NaN-safe bounds (an origin on a slab plane with a zero
 direction component gives ``0 * inf``, which never tightens the interval).
@@ -34,18 +34,26 @@ from numba import types
 from numba.core import cgutils
 from numba.extending import intrinsic
 
+from ..._jit import inline_kernel
 from ..._ray_lanes import LANES, load_eight, rays_by_axis, rays_readable
 from .wide import WIDTH, record_row
-from .wide_slab import entered_children, splat, tighten_lanes, tighten_to_slab
+from .wide_slab import entered_children, scaled_limit, slab_limits, slab_ray, splat, tighten_lanes, tighten_to_slab
 
-__all__ = ["PACKET", "PACKET_ROWS", "BOUND_T_MIN", "BOUND_BEST", "BOUND_VALUES", "enter_children_interval",
-           "enter_child_lanes", "enter_children_by_lane", "load_packet", "bound_span"]
+__all__ = ["PACKET", "PACKET_ROWS", "LANE_SLAB_ROWS", "BOUND_T_MIN", "BOUND_BEST", "BOUND_VALUES",
+           "enter_children_interval", "enter_child_lanes", "enter_children_by_lane", "set_up_lane_slab",
+           "narrow_lane_slab", "load_packet", "bound_span"]
 
 PACKET = LANES
 """Rays per packet, one per vector lane."""
 PACKET_ROWS = 8
 """Rows of :data:`PACKET` float64 in a packet's ray state: origin x, y, z, inverse
 direction x, y, z, ``t_min``, best distance so far."""
+LANE_SLAB_ROWS = 11
+"""Rows of :data:`PACKET` float32 that :func:`enter_children_by_lane` reads, each ray's in its
+lane: the origin moved for the near faces (x, y, z), moved for the far faces, the scaled inverse
+direction (the first nine numbers of :func:`.wide_slab.slab_ray`), then the two ends of its
+interval (:func:`.wide_slab.slab_limits`)."""
+_NEAR_ORIGIN, _FAR_ORIGIN, _INVERSE, _ENTER_FROM, _EXIT_BY = 0, 3, 6, 9, 10
 BOUND_T_MIN = 15
 BOUND_BEST = 16
 BOUND_VALUES = 17
@@ -132,55 +140,65 @@ def enter_child_lanes(typingctx, records, node, child, state, lanes):
 
 
 @intrinsic
-def enter_children_by_lane(typingctx, records, node, state, lanes, entry):
+def enter_children_by_lane(typingctx, records, node, slabs, scales, lanes, entry):
     """Each ray of the packet in ``lanes`` (bit ``r`` for lane ``r``) against the eight child
-    boxes of wide ``node``, as the exact test (:func:`.traverse.enter_box`) tests one ray, in
-    float64: returns the children each ray enters before its best hit, byte ``r`` of the result
+    boxes of wide ``node``, as the single-ray walk tests one ray (:func:`.wide_slab.enter_children`:
+    float32 lanes, conservatively): returns the children each ray enters, byte ``r`` of the result
     for lane ``r`` (bit ``c`` for child ``c``; 0 for a lane not in ``lanes``), and writes into
-    ``entry[c]`` the nearest entry into child ``c`` of those rays (``inf`` where none enters).
-    ``state`` holds the packet's :data:`PACKET_ROWS` rows of :data:`PACKET` float64. The rays
-    may point to either side along any axis; their tests are independent of each other, so
-    the processor overlaps them. A lane not in ``lanes`` is branched over rather than computed
-    and masked: below the top of the tree a shadow packet's rays part ways, and most nodes are
-    entered by few of its lanes (shadow rays from 1024^2 camera hits, two threads, processes
-    alternating with the masked test, 3 a side, closest / any hit: full dragon 1.36 / 1.42,
-    forest 1.33 / 1.25)."""
-    signature = types.int64(records, node, state, lanes, entry)
+    ``entry[c]`` (float64) a distance along the ray no greater than the nearest entry into child
+    ``c`` of those rays (``inf`` where none enters). ``slabs`` holds the packet's
+    :data:`LANE_SLAB_ROWS` rows of :data:`PACKET` float32 (:func:`.wide_slab.slab_ray` of each
+    ray and its interval's :func:`.wide_slab.slab_limits`), ``scales`` each ray's ``slab[9]``,
+    which turns its distances back into the ray's. The rays may point to either side along any
+    axis; their tests are independent of each other, so the processor overlaps them. A lane not
+    in ``lanes`` is branched over rather than computed and masked: below the top of the tree a
+    shadow packet's rays part ways, and most nodes are entered by few of its lanes (shadow rays
+    from 1024^2 camera hits, two threads, processes alternating with the masked test, 3 a side,
+    closest / any hit: full dragon 1.36 / 1.42, forest 1.33 / 1.25)."""
+    signature = types.int64(records, node, slabs, scales, lanes, entry)
 
     def codegen(context, builder, sig, args):
-        array, node_index, state_array, lane_bits, entry_array = args
+        array, node_index, slab_array, scale_array, lane_bits, entry_array = args
         intp = context.get_value_type(types.intp)
         int64 = ir.IntType(64)
-        floats = ir.VectorType(ir.FloatType(), WIDTH)
+        single = ir.FloatType()
+        floats = ir.VectorType(single, WIDTH)
         doubles = ir.VectorType(ir.DoubleType(), WIDTH)
         row = record_row(context, builder, sig.args[0], array, node_index, sig.args[1])
-        state_data = context.make_array(sig.args[2])(context, builder, state_array).data
-        active = context.cast(builder, lane_bits, sig.args[3], types.int64)
+        slab_data = context.make_array(sig.args[2])(context, builder, slab_array).data
+        scale_data = context.make_array(sig.args[3])(context, builder, scale_array).data
+        active = context.cast(builder, lane_bits, sig.args[4], types.int64)
         boxes = []
         for block in range(6):
             pointer = builder.gep(row, [ir.Constant(intp, WIDTH * block)])
-            boxes.append(builder.fpext(builder.load(builder.bitcast(pointer, floats.as_pointer()), align=32), doubles))
+            boxes.append(builder.load(builder.bitcast(pointer, floats.as_pointer()), align=32))
+        faces = builder.fadd(boxes[0], boxes[3])
+        used = builder.fcmp_ordered("ord", faces, faces)
         missed = ir.Constant(doubles, [float("inf")] * WIDTH)
         nearest = missed
         word = int64(0)
         for lane in range(PACKET):
-            def value(state_row):
-                return builder.load(builder.gep(state_data, [ir.Constant(intp, state_row * PACKET + lane)]))
+            def value(slab_row):
+                return builder.load(builder.gep(slab_data, [ir.Constant(intp, slab_row * PACKET + lane)]))
 
             in_lanes = builder.trunc(builder.lshr(active, int64(lane)), ir.IntType(1))
             before = builder.block
             with builder.if_then(in_lanes, likely=True):
-                enter = splat(builder, value(6), doubles)
-                exit_ = splat(builder, value(7), doubles)
+                enter = splat(builder, value(_ENTER_FROM), floats)
+                exit_ = splat(builder, value(_EXIT_BY), floats)
                 for axis in range(3):
-                    origin, inverse = value(axis), value(axis + 3)
-                    positive = builder.fcmp_ordered(">=", inverse, ir.Constant(ir.DoubleType(), 0.0))
+                    inverse = value(_INVERSE + axis)
+                    positive = builder.fcmp_ordered(">=", inverse, ir.Constant(single, 0.0))
                     near_box = builder.select(positive, boxes[axis], boxes[axis + 3])
                     far_box = builder.select(positive, boxes[axis + 3], boxes[axis])
-                    enter, exit_ = tighten_to_slab(builder, near_box, far_box, splat(builder, origin, doubles),
-                                                   splat(builder, inverse, doubles), enter, exit_)
-                entered = builder.fcmp_ordered("<=", enter, exit_)
-                lane_entry = builder.select(entered, enter, missed)
+                    enter, exit_ = tighten_to_slab(builder, near_box, far_box,
+                                                   splat(builder, value(_NEAR_ORIGIN + axis), floats),
+                                                   splat(builder, inverse, floats), enter, exit_,
+                                                   far_origin=splat(builder, value(_FAR_ORIGIN + axis), floats))
+                entered = builder.and_(builder.fcmp_ordered("<=", enter, exit_), used)
+                scale = builder.load(builder.gep(scale_data, [ir.Constant(intp, lane)]))
+                distance = builder.fmul(builder.fpext(enter, doubles), splat(builder, scale, doubles))
+                lane_entry = builder.select(entered, distance, missed)
                 lane_nearest = builder.select(builder.fcmp_ordered("<", lane_entry, nearest), lane_entry, nearest)
                 children = builder.zext(builder.bitcast(entered, ir.IntType(WIDTH)), int64)
                 lane_word = builder.or_(word, builder.shl(children, int64(8 * lane)))
@@ -192,11 +210,38 @@ def enter_children_by_lane(typingctx, records, node, state, lanes, entry):
             merged_word.add_incoming(word, before)
             merged_word.add_incoming(lane_word, tested)
             nearest, word = merged_nearest, merged_word
-        entry_view = context.make_array(sig.args[4])(context, builder, entry_array)
+        entry_view = context.make_array(sig.args[5])(context, builder, entry_array)
         builder.store(nearest, builder.bitcast(entry_view.data, doubles.as_pointer()), align=8)
         return word
 
     return signature, codegen
+
+
+@inline_kernel
+def set_up_lane_slab(slabs, scales, r, ox, oy, oz, dx, dy, dz, ix, iy, iz, reach_x, reach_y, reach_z, t_min, best):
+    """Write lane ``r``'s rows of ``slabs`` (:data:`LANE_SLAB_ROWS`) for the ray from ``(ox, oy, oz)``
+    along ``(dx, dy, dz)`` (reciprocal ``(ix, iy, iz)``) over ``[t_min, best]``, among boxes within
+    ``reach_*`` of 0, and its ``slab[9]`` and ``slab[10]`` (:func:`.wide_slab.slab_ray`) into
+    ``scales[r]`` and ``scales[PACKET + r]``."""
+    slab = slab_ray(ox, oy, oz, dx, dy, dz, ix, iy, iz, reach_x, reach_y, reach_z)
+    slabs[_NEAR_ORIGIN * PACKET + r] = slab[0]
+    slabs[(_NEAR_ORIGIN + 1) * PACKET + r] = slab[1]
+    slabs[(_NEAR_ORIGIN + 2) * PACKET + r] = slab[2]
+    slabs[_FAR_ORIGIN * PACKET + r] = slab[3]
+    slabs[(_FAR_ORIGIN + 1) * PACKET + r] = slab[4]
+    slabs[(_FAR_ORIGIN + 2) * PACKET + r] = slab[5]
+    slabs[_INVERSE * PACKET + r] = slab[6]
+    slabs[(_INVERSE + 1) * PACKET + r] = slab[7]
+    slabs[(_INVERSE + 2) * PACKET + r] = slab[8]
+    slabs[_ENTER_FROM * PACKET + r], slabs[_EXIT_BY * PACKET + r] = slab_limits(slab, t_min, best)
+    scales[r] = slab[9]
+    scales[PACKET + r] = slab[10]
+
+
+@inline_kernel
+def narrow_lane_slab(slabs, scales, r, best):
+    """Lane ``r``'s interval in ``slabs`` ending at ``best``, its ray's best hit so far."""
+    slabs[_EXIT_BY * PACKET + r] = scaled_limit(best, scales[PACKET + r], 1.0)
 
 
 @intrinsic

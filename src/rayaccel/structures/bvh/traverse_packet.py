@@ -103,11 +103,13 @@ from .packet_slab import (
     enter_children_by_lane,
     enter_children_interval,
     load_packet,
+    narrow_lane_slab,
+    set_up_lane_slab,
 )
 from .packet_triangle import HIT_ROW, HIT_ROWS, NOT_SHARED, SHEAR_ROW, hits_by_lane, set_up_shear
 from .traverse_wide import push_child, visit_leaf
 from .wide import child_count, child_link
-from .wide_slab import highest_bit
+from .wide_slab import box_reach, highest_bit
 
 __all__ = ["LANE_ROWS", "wide_packet_kernel", "wide_packet_crossings_kernel", "lane_packet_kernel",
            "lane_packet_crossings_kernel"]
@@ -124,11 +126,13 @@ _JUMP = 8.0
 """How many times the mean of its other steps a step between neighbouring lanes must be for the
 packet's rays to be walked one by one (:func:`_lanes_jump`)."""
 _HIT_T, _HIT_U, _HIT_V = ((HIT_ROW + k) * PACKET for k in range(HIT_ROWS))
-LANE_ROWS = HIT_ROW + HIT_ROWS
+_SCALES = (HIT_ROW + HIT_ROWS) * PACKET
+LANE_ROWS = HIT_ROW + HIT_ROWS + 2
 """Rows of :data:`PACKET` float64 a packet keeps per thread: the ray state
 :func:`.packet_slab.enter_child_lanes` reads, its rays' best ``u`` and ``v``, their
-triangle-test constants (:data:`.packet_triangle.SHEAR_ROW`), then their hits on the last
-triangle tested (:data:`.packet_triangle.HIT_ROW`)."""
+triangle-test constants (:data:`.packet_triangle.SHEAR_ROW`), their hits on the last
+triangle tested (:data:`.packet_triangle.HIT_ROW`), then the scales of their float32 box
+tests (:func:`.packet_slab.set_up_lane_slab`)."""
 
 
 @inline_kernel
@@ -304,13 +308,15 @@ def _root_culls_span(records, origins, directions, t_min, t_max, span_first, spa
 
 
 @inline_kernel
-def _packet_walk(ray_first, ray_end, tid, records, links, prim_order, kind, geom, origins, directions, t_min, t_max,
-                 hit_slot, any_hit, stack_link, stack_count, stack_t, entry, lanes_state, bounds_state,
-                 lanes_prim, row_length, by_lane, mode, action):
+def _packet_walk(ray_first, ray_end, tid, root_box, records, links, prim_order, kind, geom, origins, directions, t_min,
+                 t_max, hit_slot, any_hit, stack_link, stack_count, stack_t, entry, lanes_state, lanes_slab,
+                 bounds_state, lanes_prim, row_length, by_lane, mode, action):
     """Trace rays ``ray_first`` to ``ray_end - 1`` in packets of :data:`PACKET` consecutive rays
-    (the last one partial), with the stacks, child entries, lane state and packet bounds of
-    row ``tid``, each stack entry's lanes kept above its primitive count in ``stack_count``;
-    ``geom`` in leaf order, ``links`` the records seen as int32 (see :mod:`.traverse_wide`).
+    (the last one partial), with the stacks, child entries, lane state, lane slabs and packet
+    bounds of row ``tid``, each stack entry's lanes kept above its primitive count in
+    ``stack_count``; ``geom`` in leaf order, ``links`` the records seen as int32 (see
+    :mod:`.traverse_wide`), row 0 of ``root_box`` the whole tree's box, which bounds the boxes'
+    coordinates for the float32 tests of ``by_lane`` packets (:func:`.wide_slab.box_reach`).
     With a ``row_length`` other than 0 the rays are an image's rows of that length (a multiple
     of ``SPAN // 2``), ``ray_first`` and ``ray_end`` places in its tile order
     (:func:`rayaccel.ray_tiles.tile_ray`): a span is then eight tiles side by side, two runs of
@@ -321,6 +327,9 @@ def _packet_walk(ray_first, ray_end, tid, records, links, prim_order, kind, geom
     there were."""
     child_entry = entry[tid]
     state = lanes_state[tid]
+    slabs = lanes_slab[tid]
+    scales = state[_SCALES:]
+    reach_x, reach_y, reach_z = box_reach(root_box[0, :3], root_box[0, 3:6])
     bounds = bounds_state[tid]
     best_prim = lanes_prim[tid]
     nearest_first = not any_hit and mode == NEAREST
@@ -374,6 +383,11 @@ def _packet_walk(ray_first, ray_end, tid, records, links, prim_order, kind, geom
                 best_prim[r] = -1
                 state[_U + r] = 0.0
                 state[_V + r] = 0.0
+                if by_lane:
+                    ox, oy, oz, dx, dy, dz = ray_at(origins, directions, i)
+                    set_up_lane_slab(slabs, scales, r, ox, oy, oz, dx, dy, dz, state[3 * PACKET + r],
+                                     state[4 * PACKET + r], state[5 * PACKET + r], reach_x, reach_y, reach_z,
+                                     state[_T_MIN + r], state[_BEST + r])
             lanes_set_up = False
             shared_axes, kx, ky, kz = False, 0, 0, 0
             group = 1 if mixed and not by_lane else n_lanes
@@ -395,7 +409,7 @@ def _packet_walk(ray_first, ray_end, tid, records, links, prim_order, kind, geom
                 while True:
                     if node >= 0:
                         if by_lane:
-                            lane_children = enter_children_by_lane(records, node, state, lanes, child_entry)
+                            lane_children = enter_children_by_lane(records, node, slabs, scales, lanes, child_entry)
                             children = _any_lane(lane_children)
                             lanes_by_child = _transpose_lanes(lane_children)
                         else:
@@ -459,6 +473,8 @@ def _packet_walk(ray_first, ray_end, tid, records, links, prim_order, kind, geom
                             farthest_best = -np.inf
                             for r in range(group_first, group_first + group):
                                 farthest_best = max(farthest_best, state[_BEST + r])
+                                if by_lane:
+                                    narrow_lane_slab(slabs, scales, r, state[_BEST + r])
                             bounds[BOUND_BEST] = farthest_best
                     if node < 0:
                         break
@@ -470,43 +486,43 @@ def _packet_walk(ray_first, ray_end, tid, records, links, prim_order, kind, geom
 
 
 @chunk_kernel
-def wide_packet_kernel(ray_first, ray_end, tid, records, links, prim_order, kind, geom, origins, directions, t_min,
-                       t_max, hit_slot, any_hit, stack_link, stack_count, stack_t, entry, lanes_state, bounds_state,
-                       lanes_prim, row_length, action):
+def wide_packet_kernel(ray_first, ray_end, tid, root_box, records, links, prim_order, kind, geom, origins,
+                       directions, t_min, t_max, hit_slot, any_hit, stack_link, stack_count, stack_t, entry,
+                       lanes_state, lanes_slab, bounds_state, lanes_prim, row_length, action):
     """The closest-hit and any-hit packet walk (an action of mode ``NEAREST``; the other modes'
     code is pruned before it is compiled, as in :func:`.traverse_wide.wide_nearest_kernel`)."""
-    return _packet_walk(ray_first, ray_end, tid, records, links, prim_order, kind, geom, origins, directions, t_min,
-                        t_max, hit_slot, any_hit, stack_link, stack_count, stack_t, entry, lanes_state, bounds_state,
-                        lanes_prim, row_length, False, NEAREST, action)
+    return _packet_walk(ray_first, ray_end, tid, root_box, records, links, prim_order, kind, geom, origins,
+                        directions, t_min, t_max, hit_slot, any_hit, stack_link, stack_count, stack_t, entry,
+                        lanes_state, lanes_slab, bounds_state, lanes_prim, row_length, False, NEAREST, action)
 
 
 @chunk_kernel
-def wide_packet_crossings_kernel(ray_first, ray_end, tid, records, links, prim_order, kind, geom, origins, directions,
-                                 t_min, t_max, hit_slot, any_hit, stack_link, stack_count, stack_t, entry, lanes_state,
-                                 bounds_state, lanes_prim, row_length, action):
+def wide_packet_crossings_kernel(ray_first, ray_end, tid, root_box, records, links, prim_order, kind, geom, origins,
+                                 directions, t_min, t_max, hit_slot, any_hit, stack_link, stack_count, stack_t, entry,
+                                 lanes_state, lanes_slab, bounds_state, lanes_prim, row_length, action):
     """The packet walk for the other actions (counting, listing), compiled at their first use."""
-    return _packet_walk(ray_first, ray_end, tid, records, links, prim_order, kind, geom, origins, directions, t_min,
-                        t_max, hit_slot, any_hit, stack_link, stack_count, stack_t, entry, lanes_state, bounds_state,
-                        lanes_prim, row_length, False, action.mode, action)
+    return _packet_walk(ray_first, ray_end, tid, root_box, records, links, prim_order, kind, geom, origins,
+                        directions, t_min, t_max, hit_slot, any_hit, stack_link, stack_count, stack_t, entry,
+                        lanes_state, lanes_slab, bounds_state, lanes_prim, row_length, False, action.mode, action)
 
 
 @chunk_kernel
-def lane_packet_kernel(ray_first, ray_end, tid, records, links, prim_order, kind, geom, origins, directions, t_min,
-                       t_max, hit_slot, any_hit, stack_link, stack_count, stack_t, entry, lanes_state, bounds_state,
-                       lanes_prim, row_length, action):
+def lane_packet_kernel(ray_first, ray_end, tid, root_box, records, links, prim_order, kind, geom, origins,
+                       directions, t_min, t_max, hit_slot, any_hit, stack_link, stack_count, stack_t, entry,
+                       lanes_state, lanes_slab, bounds_state, lanes_prim, row_length, action):
     """The closest-hit and any-hit walk of packets whose rays are tested lane by lane (the other
     modes' code pruned, as in :func:`wide_packet_kernel`)."""
-    return _packet_walk(ray_first, ray_end, tid, records, links, prim_order, kind, geom, origins, directions, t_min,
-                        t_max, hit_slot, any_hit, stack_link, stack_count, stack_t, entry, lanes_state, bounds_state,
-                        lanes_prim, row_length, True, NEAREST, action)
+    return _packet_walk(ray_first, ray_end, tid, root_box, records, links, prim_order, kind, geom, origins,
+                        directions, t_min, t_max, hit_slot, any_hit, stack_link, stack_count, stack_t, entry,
+                        lanes_state, lanes_slab, bounds_state, lanes_prim, row_length, True, NEAREST, action)
 
 
 @chunk_kernel
-def lane_packet_crossings_kernel(ray_first, ray_end, tid, records, links, prim_order, kind, geom, origins, directions,
-                                 t_min, t_max, hit_slot, any_hit, stack_link, stack_count, stack_t, entry, lanes_state,
-                                 bounds_state, lanes_prim, row_length, action):
+def lane_packet_crossings_kernel(ray_first, ray_end, tid, root_box, records, links, prim_order, kind, geom, origins,
+                                 directions, t_min, t_max, hit_slot, any_hit, stack_link, stack_count, stack_t, entry,
+                                 lanes_state, lanes_slab, bounds_state, lanes_prim, row_length, action):
     """The walk of packets tested lane by lane for the other actions (counting, listing), compiled
     at their first use."""
-    return _packet_walk(ray_first, ray_end, tid, records, links, prim_order, kind, geom, origins, directions, t_min,
-                        t_max, hit_slot, any_hit, stack_link, stack_count, stack_t, entry, lanes_state, bounds_state,
-                        lanes_prim, row_length, True, action.mode, action)
+    return _packet_walk(ray_first, ray_end, tid, root_box, records, links, prim_order, kind, geom, origins,
+                        directions, t_min, t_max, hit_slot, any_hit, stack_link, stack_count, stack_t, entry,
+                        lanes_state, lanes_slab, bounds_state, lanes_prim, row_length, True, action.mode, action)

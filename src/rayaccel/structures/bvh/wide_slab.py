@@ -69,8 +69,8 @@ from numba.extending import intrinsic
 from ..._jit import inline_kernel, thread_rows
 from .wide import WIDTH, is_record_array, record_row
 
-__all__ = ["SLAB_FLOATS", "SLAB_SLACK", "child_entry_rows", "enter_children", "slab_ray", "slab_limits", "box_reach",
-           "highest_bit", "lowest_bit", "splat", "tighten_lanes", "tighten_to_slab", "entered_children"]
+__all__ = ["SLAB_FLOATS", "SLAB_SLACK", "child_entry_rows", "enter_children", "slab_ray", "slab_limits", "scaled_limit",
+           "box_reach", "highest_bit", "lowest_bit", "splat", "tighten_lanes", "tighten_to_slab", "entered_children"]
 
 SLAB_FLOATS = 11
 """Numbers of a ray's :func:`slab_ray`."""
@@ -149,10 +149,16 @@ def slab_limits(slab, t_min, t_max):
     direction, widened to float32 bounds (:func:`enter_children`'s ``enter_from`` and
     ``exit_by``): each end moved outwards by ``2**-22`` of itself and ``2**-140``, then rounded
     to nearest, which errs by at most ``2**-24`` of the result or ``2**-150``."""
-    low = t_min * slab[10]
-    high = t_max * slab[10]
-    return (np.float32(low - (abs(low) * _LIMIT_SLACK + _LIMIT_FLOOR)),
-            np.float32(high + (abs(high) * _LIMIT_SLACK + _LIMIT_FLOOR)))
+    return scaled_limit(t_min, slab[10], -1.0), scaled_limit(t_max, slab[10], 1.0)
+
+
+@inline_kernel
+def scaled_limit(t, unscale, side):
+    """One end of :func:`slab_limits`: ``t`` on the direction scaled by ``unscale`` (``slab[10]``
+    of :func:`slab_ray`), moved outwards (``side`` -1 for ``t_min``, 1 for ``t_max``) and rounded
+    to float32."""
+    scaled = t * unscale
+    return np.float32(scaled + side * (abs(scaled) * _LIMIT_SLACK + _LIMIT_FLOOR))
 
 
 @inline_kernel
