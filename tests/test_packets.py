@@ -27,8 +27,10 @@ from rayaccel.structures.bvh.packet_slab import (
     LANE_SLAB_ROWS,
     PACKET,
     PACKET_ROWS,
+    bound_lane_slab,
     enter_children_by_lane,
     set_up_lane_slab,
+    set_up_lane_slabs,
 )
 from rayaccel.structures.bvh.packet_triangle import (
     HIT_ROW,
@@ -281,13 +283,58 @@ def _lane_test(records, node, slabs, scales, lanes, entry):
     return enter_children_by_lane(records, node, slabs, scales, lanes, entry)
 
 
-@numba.njit
+@numba.njit(error_model="numpy")
 def _set_up_lanes(origins, directions, t_max, reach, slabs, scales):
-    """Each ray's lane of ``slabs`` and ``scales``, as the lane packet walk sets them up."""
+    """Each ray's lane of ``slabs`` and ``scales``, one ray at a time, as the lane packet walk sets
+    up a partial packet."""
     for r in range(PACKET):
         set_up_lane_slab(slabs, scales, r, origins[r, 0], origins[r, 1], origins[r, 2], directions[r, 0],
                          directions[r, 1], directions[r, 2], 1.0 / directions[r, 0], 1.0 / directions[r, 1],
-                         1.0 / directions[r, 2], reach[0], reach[1], reach[2], 0.0, t_max[r])
+                         1.0 / directions[r, 2], reach[0], reach[1], reach[2])
+        bound_lane_slab(slabs, scales, r, 0.0, t_max[r])
+
+
+@numba.njit
+def _set_up_lanes_at_once(origins, directions, second, state, reach, slabs, scales):
+    """The packet of rows 0-3 and ``second`` to ``second + 3`` set up in vector lanes."""
+    set_up_lane_slabs(origins, directions, 0, second, state, slabs, scales, reach[0], reach[1], reach[2])
+
+
+@pytest.mark.parametrize("second", [4, 9])
+def test_lane_slabs_in_vector_lanes_are_those_of_the_rays_one_by_one(second):
+    """A full packet's slabs set up in vector lanes are, to the bit, those of its rays set up one at a
+    time, rays beyond the float32 test's range (which enter every box) included: zero and tiny
+    direction components, huge and subnormal ones, origins far out."""
+    rng = np.random.default_rng(3)
+    for trial in range(40):
+        origins = rng.normal(size=(second + 4, 3)) * 10.0 ** rng.integers(-3, 4, size=(second + 4, 1))
+        directions = rng.normal(size=(second + 4, 3))
+        lanes = np.r_[0:4, second:second + 4]
+        special = rng.integers(0, 7, size=8)
+        for lane, kind in zip(lanes, special):
+            axis = rng.integers(0, 3)
+            if kind == 1:
+                directions[lane, axis] = 0.0
+            elif kind == 2:
+                directions[lane, axis] = 1e-310
+            elif kind == 3:
+                directions[lane] *= 1e280
+            elif kind == 4:
+                origins[lane, axis] = 1e35
+            elif kind == 5:
+                directions[lane, axis] = -0.0
+        reach = np.abs(rng.normal(size=3)) * 10.0 ** rng.integers(-2, 3)
+        state = np.zeros(LANE_ROWS * PACKET)
+        with np.errstate(divide="ignore", over="ignore"):
+            state[3 * PACKET:6 * PACKET] = (1.0 / directions[lanes]).T.ravel()
+        at_once = np.zeros(LANE_SLAB_ROWS * PACKET, np.float32), np.zeros(2 * PACKET)
+        _set_up_lanes_at_once(origins, directions, second, state, reach, *at_once)
+        one_by_one = np.zeros(LANE_SLAB_ROWS * PACKET, np.float32), np.zeros(2 * PACKET)
+        _set_up_lanes(np.ascontiguousarray(origins[lanes]), np.ascontiguousarray(directions[lanes]),
+                      np.zeros(PACKET), reach, *one_by_one)
+        rows = 9 * PACKET
+        assert np.array_equal(at_once[0][:rows].view(np.uint32), one_by_one[0][:rows].view(np.uint32)), trial
+        assert np.array_equal(at_once[1].view(np.uint64), one_by_one[1].view(np.uint64)), trial
 
 
 @numba.njit

@@ -37,11 +37,11 @@ from numba.extending import intrinsic
 from ..._jit import inline_kernel
 from ..._ray_lanes import LANES, load_eight, rays_by_axis, rays_readable
 from .wide import WIDTH, record_row
-from .wide_slab import entered_children, scaled_limit, slab_limits, slab_ray, splat, tighten_lanes, tighten_to_slab
+from .wide_slab import entered_children, scaled_limit, slab_ray, slab_ray_ir, splat, tighten_lanes, tighten_to_slab
 
 __all__ = ["PACKET", "PACKET_ROWS", "LANE_SLAB_ROWS", "BOUND_T_MIN", "BOUND_BEST", "BOUND_VALUES",
            "enter_children_interval", "enter_child_lanes", "enter_children_by_lane", "set_up_lane_slab",
-           "narrow_lane_slab", "load_packet", "bound_span"]
+           "set_up_lane_slabs", "bound_lane_slab", "narrow_lane_slab", "load_packet", "bound_span"]
 
 PACKET = LANES
 """Rays per packet, one per vector lane."""
@@ -218,11 +218,12 @@ def enter_children_by_lane(typingctx, records, node, slabs, scales, lanes, entry
 
 
 @inline_kernel
-def set_up_lane_slab(slabs, scales, r, ox, oy, oz, dx, dy, dz, ix, iy, iz, reach_x, reach_y, reach_z, t_min, best):
-    """Write lane ``r``'s rows of ``slabs`` (:data:`LANE_SLAB_ROWS`) for the ray from ``(ox, oy, oz)``
-    along ``(dx, dy, dz)`` (reciprocal ``(ix, iy, iz)``) over ``[t_min, best]``, among boxes within
+def set_up_lane_slab(slabs, scales, r, ox, oy, oz, dx, dy, dz, ix, iy, iz, reach_x, reach_y, reach_z):
+    """Write lane ``r``'s slab rows of ``slabs`` (the first nine of :data:`LANE_SLAB_ROWS`) for the
+    ray from ``(ox, oy, oz)`` along ``(dx, dy, dz)`` (reciprocal ``(ix, iy, iz)``) among boxes within
     ``reach_*`` of 0, and its ``slab[9]`` and ``slab[10]`` (:func:`.wide_slab.slab_ray`) into
-    ``scales[r]`` and ``scales[PACKET + r]``."""
+    ``scales[r]`` and ``scales[PACKET + r]``: a packet's partial last lanes, the others taking
+    :func:`set_up_lane_slabs`."""
     slab = slab_ray(ox, oy, oz, dx, dy, dz, ix, iy, iz, reach_x, reach_y, reach_z)
     slabs[_NEAR_ORIGIN * PACKET + r] = slab[0]
     slabs[(_NEAR_ORIGIN + 1) * PACKET + r] = slab[1]
@@ -233,9 +234,60 @@ def set_up_lane_slab(slabs, scales, r, ox, oy, oz, dx, dy, dz, ix, iy, iz, reach
     slabs[_INVERSE * PACKET + r] = slab[6]
     slabs[(_INVERSE + 1) * PACKET + r] = slab[7]
     slabs[(_INVERSE + 2) * PACKET + r] = slab[8]
-    slabs[_ENTER_FROM * PACKET + r], slabs[_EXIT_BY * PACKET + r] = slab_limits(slab, t_min, best)
     scales[r] = slab[9]
     scales[PACKET + r] = slab[10]
+
+
+@intrinsic
+def set_up_lane_slabs(typingctx, origins, directions, first, second, state, slabs, scales, reach_x, reach_y,
+                      reach_z):
+    """:func:`set_up_lane_slab` for the :data:`PACKET` rays of rows ``first`` to ``first + 3`` and
+    ``second`` to ``second + 3`` of ``origins`` and ``directions`` (as :func:`load_packet` takes
+    them; their reciprocals read from rows 3-5 of ``state``, where it wrote them), in vector
+    instructions, each lane computing what the scalar set-up computes for its ray, to the bit
+    (:func:`.wide_slab.slab_ray_ir`). Set up ray after ray, a packet's eight slabs took 7-13 % of
+    a shadow query (forest, one thread: 1.0-1.9 ms of 14.3-14.6 ms more when done twice); in
+    vector lanes, shadow rays, one thread, CPU time, medians of 7 alternating in one process,
+    closest / any hit: forest 1.13 / 1.09, full dragon 1.06 / 1.06 (first shadow query on an empty
+    cache 10.1-10.7 s of CPU, against 9.4-10.7 in the same hour)."""
+    if not rays_readable(origins, directions):
+        return None
+    signature = types.void(origins, directions, first, second, state, slabs, scales, reach_x, reach_y, reach_z)
+
+    def codegen(context, builder, sig, args):
+        origin_array, direction_array, first_row, second_row, state_array, slab_array, scale_array = args[:7]
+        intp = context.get_value_type(types.intp)
+        doubles = ir.VectorType(ir.DoubleType(), PACKET)
+        floats = ir.VectorType(ir.FloatType(), PACKET)
+        row = context.cast(builder, first_row, sig.args[2], types.intp)
+        second_start = context.cast(builder, second_row, sig.args[3], types.intp)
+        origin = rays_by_axis(context, builder, sig.args[0], origin_array, row, second_start)
+        direction = rays_by_axis(context, builder, sig.args[1], direction_array, row, second_start)
+        state_data = builder.bitcast(context.make_array(sig.args[4])(context, builder, state_array).data,
+                                     doubles.as_pointer())
+        inverse = [builder.load(builder.gep(state_data, [ir.Constant(intp, 3 + axis)]), align=8) for axis in range(3)]
+        reach = [splat(builder, context.cast(builder, value, sig.args[7 + axis], types.float64), doubles)
+                 for axis, value in enumerate(args[7:10])]
+        values = slab_ray_ir(builder, origin, direction, inverse, reach)
+        slab_data = builder.bitcast(context.make_array(sig.args[5])(context, builder, slab_array).data,
+                                    floats.as_pointer())
+        for k, vector in enumerate(values[:9]):
+            builder.store(vector, builder.gep(slab_data, [ir.Constant(intp, k)]), align=4)
+        scale_data = builder.bitcast(context.make_array(sig.args[6])(context, builder, scale_array).data,
+                                     doubles.as_pointer())
+        for k, vector in enumerate(values[9:]):
+            builder.store(vector, builder.gep(scale_data, [ir.Constant(intp, k)]), align=8)
+        return context.get_dummy_value()
+
+    return signature, codegen
+
+
+@inline_kernel
+def bound_lane_slab(slabs, scales, r, t_min, best):
+    """Lane ``r``'s interval in ``slabs``, ``[t_min, best]`` on its scaled direction
+    (:func:`.wide_slab.slab_limits`)."""
+    slabs[_ENTER_FROM * PACKET + r] = scaled_limit(t_min, scales[PACKET + r], -1.0)
+    slabs[_EXIT_BY * PACKET + r] = scaled_limit(best, scales[PACKET + r], 1.0)
 
 
 @inline_kernel

@@ -100,6 +100,7 @@ from .packet_slab import (
     BOUND_BEST,
     BOUND_T_MIN,
     PACKET,
+    bound_lane_slab,
     bound_span,
     enter_child_lanes,
     enter_children_by_lane,
@@ -107,6 +108,7 @@ from .packet_slab import (
     load_packet,
     narrow_lane_slab,
     set_up_lane_slab,
+    set_up_lane_slabs,
 )
 from .packet_triangle import HIT_ROW, HIT_ROWS, NOT_SHARED, SHEAR_ROW, hits_by_lane, set_up_shear
 from .traverse_wide import push_child, visit_leaf
@@ -391,6 +393,9 @@ def _packet_walk(ray_first, ray_end, tid, root_box, records, links, prim_order, 
                         state[axis * PACKET + r] = origins[i, axis]
                         state[(axis + 3) * PACKET + r] = inverse
                         mixed |= (inverse >= 0.0) != (state[(axis + 3) * PACKET] >= 0.0)
+            if by_lane and loaded:
+                set_up_lane_slabs(origins, directions, packet_first, packet_second, state, slabs, scales, reach_x,
+                                  reach_y, reach_z)
             for r in range(PACKET):
                 i = lane_ray(packet_first, min(r, n_lanes - 1), packet_second)
                 state[_T_MIN + r] = ray_limit(t_min, i)
@@ -399,10 +404,11 @@ def _packet_walk(ray_first, ray_end, tid, root_box, records, links, prim_order, 
                 state[_U + r] = 0.0
                 state[_V + r] = 0.0
                 if by_lane:
-                    ox, oy, oz, dx, dy, dz = ray_at(origins, directions, i)
-                    set_up_lane_slab(slabs, scales, r, ox, oy, oz, dx, dy, dz, state[3 * PACKET + r],
-                                     state[4 * PACKET + r], state[5 * PACKET + r], reach_x, reach_y, reach_z,
-                                     state[_T_MIN + r], state[_BEST + r])
+                    if not loaded:
+                        ox, oy, oz, dx, dy, dz = ray_at(origins, directions, i)
+                        set_up_lane_slab(slabs, scales, r, ox, oy, oz, dx, dy, dz, state[3 * PACKET + r],
+                                         state[4 * PACKET + r], state[5 * PACKET + r], reach_x, reach_y, reach_z)
+                    bound_lane_slab(slabs, scales, r, state[_T_MIN + r], state[_BEST + r])
             lanes_set_up = False
             shared_axes, kx, ky, kz = False, 0, 0, 0
             group = 1 if mixed and not by_lane else n_lanes

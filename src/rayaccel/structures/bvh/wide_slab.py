@@ -69,8 +69,9 @@ from numba.extending import intrinsic
 from ..._jit import inline_kernel, thread_rows
 from .wide import WIDTH, is_record_array, record_row
 
-__all__ = ["SLAB_FLOATS", "SLAB_SLACK", "child_entry_rows", "enter_children", "slab_ray", "slab_limits", "scaled_limit",
-           "box_reach", "highest_bit", "lowest_bit", "splat", "tighten_lanes", "tighten_to_slab", "entered_children"]
+__all__ = ["SLAB_FLOATS", "SLAB_SLACK", "child_entry_rows", "enter_children", "slab_ray", "slab_ray_ir", "slab_limits",
+           "scaled_limit", "box_reach", "highest_bit", "lowest_bit", "splat", "tighten_lanes", "tighten_to_slab",
+           "entered_children"]
 
 SLAB_FLOATS = 11
 """Numbers of a ray's :func:`slab_ray`."""
@@ -99,48 +100,64 @@ def slab_ray(typingctx, ox, oy, oz, dx, dy, dz, ix, iy, iz, reach_x, reach_y, re
     signature = types.Tuple((float32,) * 9 + (float64, float64))(*(float64,) * 12)
 
     def codegen(context, builder, sig, args):
-        double = ir.DoubleType()
-        int64 = ir.IntType(64)
-        origin, direction, inverse, reach = args[0:3], args[3:6], args[6:9], args[9:12]
-
-        def call(name, *values):
-            function = cgutils.get_or_insert_function(builder.module,
-                                                      ir.FunctionType(double, [double] * len(values)), name)
-            return builder.call(function, list(values))
-
-        def larger(a, b):
-            return builder.select(builder.fcmp_ordered(">", a, b), a, b)
-
-        def smaller(a, b):
-            return builder.select(builder.fcmp_ordered("<", a, b), a, b)
-
-        magnitudes = [call("llvm.fabs.f64", d) for d in direction]
-        largest = larger(larger(magnitudes[0], magnitudes[1]), magnitudes[2])
-        largest = smaller(larger(largest, double(2.0 ** -1022)), double(2.0 ** 1022))
-        exponent = builder.and_(builder.bitcast(largest, int64), int64(0x7FF0000000000000))
-        unscale = builder.bitcast(exponent, double)
-        scale = builder.bitcast(builder.sub(int64(0x7FE0000000000000), exponent), double)
-        scaled = [builder.fmul(i, unscale) for i in inverse]
-        spans = [builder.fadd(r, call("llvm.fabs.f64", o)) for r, o in zip(reach, origin)]
-        checks = [builder.fcmp_ordered(">=", scale, double(_SCALE_LOW)),
-                  builder.fcmp_ordered("<=", scale, double(_SCALE_HIGH)),
-                  builder.fcmp_ordered(">=", smaller(smaller(spans[0], spans[1]), spans[2]), double(_SMALLEST)),
-                  builder.fcmp_ordered("<=", larger(larger(spans[0], spans[1]), spans[2]), double(_LARGEST))]
-        for d, i in zip(direction, scaled):
-            checks.append(builder.or_(builder.fcmp_ordered("==", d, double(0.0)),
-                                      builder.fcmp_ordered("<=", call("llvm.fabs.f64", i), double(_LARGEST))))
-        in_range = checks[0]
-        for check in checks[1:]:
-            in_range = builder.and_(in_range, check)
-        slack = builder.select(in_range, double(SLAB_SLACK), double(float("inf")))
-        moves = [call("llvm.copysign.f64", builder.fmul(slack, span), i) for span, i in zip(spans, scaled)]
-        single = ir.FloatType()
-        values = ([builder.fptrunc(builder.fadd(o, m), single) for o, m in zip(origin, moves)]
-                  + [builder.fptrunc(builder.fsub(o, m), single) for o, m in zip(origin, moves)]
-                  + [builder.fptrunc(i, single) for i in scaled] + [scale, unscale])
+        values = slab_ray_ir(builder, args[0:3], args[3:6], args[6:9], args[9:12])
         return context.make_tuple(builder, sig.return_type, values)
 
     return signature, codegen
+
+
+def slab_ray_ir(builder, origin, direction, inverse, reach):
+    """The IR of :func:`slab_ray` on float64 values, or lane for lane on vectors of them (the
+    packets' lanes, :func:`.packet_slab.set_up_lane_slabs`): the nine float32 numbers (or
+    vectors), then ``s`` and ``1 / s``."""
+    kind = origin[0].type
+    lanes = kind.count if isinstance(kind, ir.VectorType) else None
+    double = ir.DoubleType()
+    int64 = ir.IntType(64)
+    integers = int64 if lanes is None else ir.VectorType(int64, lanes)
+    single = ir.FloatType() if lanes is None else ir.VectorType(ir.FloatType(), lanes)
+    suffix = "f64" if lanes is None else f"v{lanes}f64"
+
+    def number(value):
+        return double(value) if lanes is None else ir.Constant(kind, [value] * lanes)
+
+    def integer(value):
+        return int64(value) if lanes is None else ir.Constant(integers, [value] * lanes)
+
+    def call(name, *values):
+        function = cgutils.get_or_insert_function(builder.module, ir.FunctionType(kind, [kind] * len(values)),
+                                                  f"llvm.{name}.{suffix}")
+        return builder.call(function, list(values))
+
+    def larger(a, b):
+        return builder.select(builder.fcmp_ordered(">", a, b), a, b)
+
+    def smaller(a, b):
+        return builder.select(builder.fcmp_ordered("<", a, b), a, b)
+
+    magnitudes = [call("fabs", d) for d in direction]
+    largest = larger(larger(magnitudes[0], magnitudes[1]), magnitudes[2])
+    largest = smaller(larger(largest, number(2.0 ** -1022)), number(2.0 ** 1022))
+    exponent = builder.and_(builder.bitcast(largest, integers), integer(0x7FF0000000000000))
+    unscale = builder.bitcast(exponent, kind)
+    scale = builder.bitcast(builder.sub(integer(0x7FE0000000000000), exponent), kind)
+    scaled = [builder.fmul(i, unscale) for i in inverse]
+    spans = [builder.fadd(r, call("fabs", o)) for r, o in zip(reach, origin)]
+    checks = [builder.fcmp_ordered(">=", scale, number(_SCALE_LOW)),
+              builder.fcmp_ordered("<=", scale, number(_SCALE_HIGH)),
+              builder.fcmp_ordered(">=", smaller(smaller(spans[0], spans[1]), spans[2]), number(_SMALLEST)),
+              builder.fcmp_ordered("<=", larger(larger(spans[0], spans[1]), spans[2]), number(_LARGEST))]
+    for d, i in zip(direction, scaled):
+        checks.append(builder.or_(builder.fcmp_ordered("==", d, number(0.0)),
+                                  builder.fcmp_ordered("<=", call("fabs", i), number(_LARGEST))))
+    in_range = checks[0]
+    for check in checks[1:]:
+        in_range = builder.and_(in_range, check)
+    slack = builder.select(in_range, number(SLAB_SLACK), number(float("inf")))
+    moves = [call("copysign", builder.fmul(slack, span), i) for span, i in zip(spans, scaled)]
+    return ([builder.fptrunc(builder.fadd(o, m), single) for o, m in zip(origin, moves)]
+            + [builder.fptrunc(builder.fsub(o, m), single) for o, m in zip(origin, moves)]
+            + [builder.fptrunc(i, single) for i in scaled] + [scale, unscale])
 
 
 @inline_kernel
