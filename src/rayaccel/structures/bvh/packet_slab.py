@@ -287,7 +287,7 @@ def bound_lane_slab(slabs, scales, r, t_min, best):
     """Lane ``r``'s interval in ``slabs``, ``[t_min, best]`` on its scaled direction
     (:func:`.wide_slab.slab_limits`)."""
     slabs[_ENTER_FROM * PACKET + r] = scaled_limit(t_min, scales[PACKET + r], -1.0)
-    slabs[_EXIT_BY * PACKET + r] = scaled_limit(best, scales[PACKET + r], 1.0)
+    narrow_lane_slab(slabs, scales, r, best)
 
 
 @inline_kernel

@@ -158,10 +158,9 @@ def _transpose_lanes(word):
 def _lanes_by_child(word, lanes):
     """Byte ``c`` the lanes among ``lanes`` that enter child ``c``, from ``word`` (byte ``r`` the
     children lane ``r`` enters): :func:`_transpose_lanes`, or, for a single lane, that lane in every
-    byte, which is all a child entered needs, without the transpose. Below the top of the tree most
-    of a shadow packet's nodes are walked by one lane: shadow rays, one thread, CPU time, medians of
-    7-9 alternating in one process, closest / any hit: forest 1.02-1.03 / 1.02-1.03, full dragon
-    1.01-1.02 / 1.01-1.02."""
+    byte, which is all a child entered needs, without the transpose. Against transposing always,
+    shadow rays, one thread, CPU time, medians of 7-9 alternating in one process, closest / any
+    hit: forest 1.02-1.03 / 1.02-1.03, full dragon 1.01-1.02 / 1.01-1.02."""
     if lanes & (lanes - 1) == 0:
         return unsigned(lanes) * unsigned(0x0101010101010101)
     return _transpose_lanes(word)
@@ -479,7 +478,7 @@ def _packet_walk(ray_first, ray_end, tid, root_box, records, links, prim_order, 
                             shared_axes = axes != NOT_SHARED
                             kx, ky, kz = axes & 3, (axes >> 2) & 3, axes >> 4
                             lanes_set_up = True
-                        if lane_triangles and shared_axes and not _two_at_most(lanes & ~done):
+                        if lane_triangles and shared_axes and not _two_at_most(lanes):
                             done, improved = _leaf_by_triangle(geom, prim_order, first, count, lanes, done, kx, ky,
                                                                kz, state, best_prim, any_hit)
                         else:
