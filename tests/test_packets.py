@@ -28,7 +28,9 @@ from rayaccel.structures.bvh.packet_slab import (
     PACKET,
     PACKET_ROWS,
     bound_lane_slab,
+    bound_lane_slabs,
     enter_children_by_lane,
+    load_lane_limits,
     set_up_lane_slab,
     set_up_lane_slabs,
 )
@@ -335,6 +337,51 @@ def test_lane_slabs_in_vector_lanes_are_those_of_the_rays_one_by_one(second):
         rows = 9 * PACKET
         assert np.array_equal(at_once[0][:rows].view(np.uint32), one_by_one[0][:rows].view(np.uint32)), trial
         assert np.array_equal(at_once[1].view(np.uint64), one_by_one[1].view(np.uint64)), trial
+
+
+@numba.njit
+def _bound_lanes(t_min, t_max, lanes, slabs, scales):
+    """Each lane's interval in ``slabs``, one ray at a time, from the batch's limits of the rays
+    ``lanes`` (:func:`rayaccel.rays.ray_limit`: one value for all when the arrays hold one)."""
+    for r in range(PACKET):
+        i = lanes[r]
+        low = t_min[i] if t_min.shape[0] > 1 else t_min[0]
+        high = t_max[i] if t_max.shape[0] > 1 else t_max[0]
+        bound_lane_slab(slabs, scales, r, low, high)
+
+
+@numba.njit
+def _bound_lanes_at_once(t_min, t_max, second, state, slabs, scales):
+    """The limits of the packet of rows 0-3 and ``second`` to ``second + 3`` loaded and bounded in
+    vector lanes."""
+    load_lane_limits(t_min, t_max, 0, second, state)
+    bound_lane_slabs(slabs, scales, state)
+
+
+@pytest.mark.parametrize("shared", [False, True], ids=["per ray", "one for all"])
+@pytest.mark.parametrize("second", [4, 9])
+def test_lane_limits_in_vector_lanes_are_those_of_the_rays_one_by_one(second, shared):
+    """A full packet's limits loaded and bounded in vector lanes are, to the bit, those of its rays
+    bounded one at a time: per-ray or shared ``t_min`` and ``t_max``, zero, subnormal, huge and
+    infinite ends, on directions scaled by powers of two far from 1."""
+    rng = np.random.default_rng(5)
+    n = second + 4
+    lanes = np.r_[0:4, second:second + 4]
+    for trial in range(40):
+        size = 1 if shared else n
+        t_min = np.abs(rng.normal(size=size)) * 10.0 ** rng.integers(-300, 4, size=size)
+        t_max = t_min + np.abs(rng.normal(size=size)) * 10.0 ** rng.integers(-3, 300, size=size)
+        t_min[rng.random(size) < 0.2] = 0.0
+        t_max[rng.random(size) < 0.2] = np.inf
+        unscale = 2.0 ** rng.integers(-60, 60, size=PACKET).astype(float)
+        at_once = np.zeros(LANE_SLAB_ROWS * PACKET, np.float32), np.r_[1.0 / unscale, unscale]
+        state = np.zeros(LANE_ROWS * PACKET)
+        _bound_lanes_at_once(t_min, t_max, second, state, *at_once)
+        one_by_one = np.zeros(LANE_SLAB_ROWS * PACKET, np.float32), at_once[1].copy()
+        _bound_lanes(t_min, t_max, lanes, *one_by_one)
+        assert np.array_equal(at_once[0].view(np.uint32), one_by_one[0].view(np.uint32)), trial
+        expected = np.broadcast_to(np.c_[t_min, t_max][lanes if not shared else [0] * PACKET].T, (2, PACKET))
+        assert np.array_equal(state[6 * PACKET:8 * PACKET], expected.ravel()), trial
 
 
 @numba.njit

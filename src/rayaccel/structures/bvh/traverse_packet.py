@@ -101,10 +101,13 @@ from .packet_slab import (
     BOUND_T_MIN,
     PACKET,
     bound_lane_slab,
+    bound_lane_slabs,
     bound_span,
     enter_child_lanes,
     enter_children_by_lane,
     enter_children_interval,
+    load_lane_limits,
+    load_lanes,
     load_packet,
     narrow_lane_slab,
     set_up_lane_slab,
@@ -379,10 +382,12 @@ def _packet_walk(ray_first, ray_end, tid, root_box, records, links, prim_order, 
             packet_second = packet_first + lane_offset
             n_lanes = min(PACKET, span_rays - packet)
             loaded = n_lanes == PACKET
-            if loaded:
+            if loaded and by_lane:
+                mixed = False
+                load_lanes(origins, directions, packet_first, packet_second, state)
+            elif loaded:
                 mixed = load_packet(origins, directions, packet_first, packet_second, state, bounds) != 0
-                mixed = mixed or (not by_lane and packet_step == PACKET
-                                  and _lanes_jump(directions, packet_first, packet_second))
+                mixed = mixed or (packet_step == PACKET and _lanes_jump(directions, packet_first, packet_second))
             else:
                 mixed = False
                 for r in range(PACKET):
@@ -392,22 +397,25 @@ def _packet_walk(ray_first, ray_end, tid, root_box, records, links, prim_order, 
                         state[axis * PACKET + r] = origins[i, axis]
                         state[(axis + 3) * PACKET + r] = inverse
                         mixed |= (inverse >= 0.0) != (state[(axis + 3) * PACKET] >= 0.0)
-            if by_lane and loaded:
-                set_up_lane_slabs(origins, directions, packet_first, packet_second, state, slabs, scales, reach_x,
-                                  reach_y, reach_z)
+            if loaded:
+                load_lane_limits(t_min, t_max, packet_first, packet_second, state)
+                if by_lane:
+                    set_up_lane_slabs(origins, directions, packet_first, packet_second, state, slabs, scales,
+                                      reach_x, reach_y, reach_z)
+                    bound_lane_slabs(slabs, scales, state)
             for r in range(PACKET):
-                i = lane_ray(packet_first, min(r, n_lanes - 1), packet_second)
-                state[_T_MIN + r] = ray_limit(t_min, i)
-                state[_BEST + r] = ray_limit(t_max, i)
                 best_prim[r] = -1
                 state[_U + r] = 0.0
                 state[_V + r] = 0.0
-                if by_lane:
-                    if not loaded:
+                if not loaded:
+                    i = lane_ray(packet_first, min(r, n_lanes - 1), packet_second)
+                    state[_T_MIN + r] = ray_limit(t_min, i)
+                    state[_BEST + r] = ray_limit(t_max, i)
+                    if by_lane:
                         ox, oy, oz, dx, dy, dz = ray_at(origins, directions, i)
                         set_up_lane_slab(slabs, scales, r, ox, oy, oz, dx, dy, dz, state[3 * PACKET + r],
                                          state[4 * PACKET + r], state[5 * PACKET + r], reach_x, reach_y, reach_z)
-                    bound_lane_slab(slabs, scales, r, state[_T_MIN + r], state[_BEST + r])
+                        bound_lane_slab(slabs, scales, r, state[_T_MIN + r], state[_BEST + r])
             lanes_set_up = False
             shared_axes, kx, ky, kz = False, 0, 0, 0
             group = 1 if mixed and not by_lane else n_lanes

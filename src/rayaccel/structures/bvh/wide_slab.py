@@ -70,8 +70,8 @@ from ..._jit import inline_kernel, thread_rows
 from .wide import WIDTH, is_record_array, record_row
 
 __all__ = ["SLAB_FLOATS", "SLAB_SLACK", "child_entry_rows", "enter_children", "slab_ray", "slab_ray_ir", "slab_limits",
-           "scaled_limit", "box_reach", "highest_bit", "lowest_bit", "splat", "tighten_lanes", "tighten_to_slab",
-           "entered_children"]
+           "scaled_limit", "scaled_limit_ir", "box_reach", "highest_bit", "lowest_bit", "splat", "tighten_lanes",
+           "tighten_to_slab", "entered_children"]
 
 SLAB_FLOATS = 11
 """Numbers of a ray's :func:`slab_ray`."""
@@ -169,13 +169,36 @@ def slab_limits(slab, t_min, t_max):
     return scaled_limit(t_min, slab[10], -1.0), scaled_limit(t_max, slab[10], 1.0)
 
 
-@inline_kernel
-def scaled_limit(t, unscale, side):
+@intrinsic
+def scaled_limit(typingctx, t, unscale, side):
     """One end of :func:`slab_limits`: ``t`` on the direction scaled by ``unscale`` (``slab[10]``
     of :func:`slab_ray`), moved outwards (``side`` -1 for ``t_min``, 1 for ``t_max``) and rounded
-    to float32."""
-    scaled = t * unscale
-    return np.float32(scaled + side * (abs(scaled) * _LIMIT_SLACK + _LIMIT_FLOOR))
+    to float32 (:func:`scaled_limit_ir`)."""
+    float64 = types.float64
+    signature = types.float32(float64, float64, float64)
+
+    def codegen(context, builder, sig, args):
+        return scaled_limit_ir(builder, *args)
+
+    return signature, codegen
+
+
+def scaled_limit_ir(builder, t, unscale, side):
+    """The IR of :func:`scaled_limit` on float64 values, or lane for lane on vectors of them (a
+    packet's lanes, :func:`.packet_slab.bound_lane_slabs`): ``t * unscale``, moved by ``side``
+    times ``2**-22`` of its magnitude plus ``2**-140``, rounded to float32 (or a vector of them)."""
+    kind = t.type
+    lanes = kind.count if isinstance(kind, ir.VectorType) else None
+    suffix = "f64" if lanes is None else f"v{lanes}f64"
+    single = ir.FloatType() if lanes is None else ir.VectorType(ir.FloatType(), lanes)
+
+    def number(value):
+        return ir.DoubleType()(value) if lanes is None else ir.Constant(kind, [value] * lanes)
+
+    fabs = cgutils.get_or_insert_function(builder.module, ir.FunctionType(kind, [kind]), f"llvm.fabs.{suffix}")
+    scaled = builder.fmul(t, unscale)
+    margin = builder.fadd(builder.fmul(builder.call(fabs, [scaled]), number(_LIMIT_SLACK)), number(_LIMIT_FLOOR))
+    return builder.fptrunc(builder.fadd(scaled, builder.fmul(side, margin)), single)
 
 
 @inline_kernel
