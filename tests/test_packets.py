@@ -30,6 +30,7 @@ from rayaccel.structures.bvh.packet_slab import (
     bound_lane_slab,
     bound_lane_slabs,
     enter_children_by_lane,
+    enter_children_of_lanes,
     load_lane_limits,
     set_up_lane_slab,
     set_up_lane_slabs,
@@ -435,6 +436,54 @@ def test_lane_test_answers_each_lane_of_the_mask_as_alone(small_dragon):
             nearest = np.min([np.full(WIDTH, np.inf)] + [alone_entry[lane] for lane in in_mask], axis=0)
             assert np.array_equal(entry, nearest)
         tested += 1
+    assert tested >= 16
+
+
+@numba.njit(cache=False)
+def _child_test(records, node, slabs, scales, lanes, entry, read_entries, near_x, near_y, near_z):
+    """The test of each child against the packet's lanes at once, called from Python (not cached,
+    as :func:`_lane_test`)."""
+    return enter_children_of_lanes(records, node, slabs, scales, lanes, entry, read_entries, near_x, near_y, near_z)
+
+
+@pytest.mark.parametrize("scales_differ", [False, True], ids=["one scale", "scales differ"])
+def test_child_test_sends_each_lane_where_the_lane_test_does(small_dragon, scales_differ):
+    """Testing each child against all the packet's rays at once (rays that point to one side along
+    each axis) gives, for any mask of lanes, byte ``c`` the lanes that the lane-by-lane test sends
+    into child ``c``, and bit ``c`` of the children some lane enters; its entry distances are the
+    lane test's where the rays share their scale and no greater where they do not, and ``-inf``
+    when the walk does not read them. Some rays end before the boxes they aim at."""
+    accel = ra.build(small_dragon, "bvh-binned")
+    rng = np.random.default_rng(11)
+    origins, _ = random_rays(small_dragon, PACKET, seed=11)
+    lo, hi = small_dragon.vertices.min(axis=0), small_dragon.vertices.max(axis=0)
+    directions = hi + 2.0 * (hi - lo) - origins
+    directions /= np.abs(directions).max(axis=1, keepdims=True)
+    if scales_differ:
+        directions[::2] *= 8.0
+    t_max = np.where(np.arange(PACKET) % 3 == 0, 0.5, np.inf)
+    reach = np.maximum(np.abs(accel.root_record[0, :3]), np.abs(accel.root_record[0, 3:6])).astype(np.float64)
+    slabs = np.zeros(LANE_SLAB_ROWS * PACKET, np.float32)
+    scales = np.zeros(2 * PACKET)
+    _set_up_lanes(origins, directions, t_max, reach, slabs, scales)
+    assert (len(set(scales[:PACKET])) > 1) == scales_differ
+    near = [axis if directions[0, axis] >= 0.0 else axis + 3 for axis in range(3)]
+    lane_entry, child_entry = np.empty(WIDTH), np.empty(WIDTH)
+    tested = 0
+    for node in range(len(accel.wide)):
+        for lanes in [0xFF, *rng.integers(1, 256, 8)]:
+            word = _lane_test(accel.wide, node, slabs, scales, int(lanes), lane_entry) % (1 << 64)
+            children, by_child = _child_test(accel.wide, node, slabs, scales, int(lanes), child_entry, True, *near)
+            expected = [sum(((word >> (8 * lane + c)) & 1) << lane for lane in range(PACKET)) for c in range(WIDTH)]
+            assert by_child % (1 << 64) == sum(rays << (8 * c) for c, rays in enumerate(expected))
+            assert children == sum(1 << c for c, rays in enumerate(expected) if rays)
+            if scales_differ:
+                assert np.all(child_entry <= lane_entry)
+            else:
+                assert np.array_equal(child_entry, lane_entry)
+            _child_test(accel.wide, node, slabs, scales, int(lanes), child_entry, False, *near)
+            assert np.all(child_entry == -np.inf)
+            tested += children != 0
     assert tested >= 16
 
 

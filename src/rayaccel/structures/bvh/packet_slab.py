@@ -49,7 +49,8 @@ from .wide_slab import (
 )
 
 __all__ = ["PACKET", "PACKET_ROWS", "LANE_SLAB_ROWS", "BOUND_T_MIN", "BOUND_BEST", "BOUND_VALUES",
-           "enter_children_interval", "enter_child_lanes", "enter_children_by_lane", "set_up_lane_slab",
+           "enter_children_interval", "enter_child_lanes", "enter_children_by_lane", "enter_children_of_lanes",
+           "set_up_lane_slab",
            "set_up_lane_slabs", "bound_lane_slab", "bound_lane_slabs", "narrow_lane_slab", "load_lane_limits",
            "load_packet", "load_lanes", "bound_span"]
 
@@ -225,6 +226,103 @@ def enter_children_by_lane(typingctx, records, node, slabs, scales, lanes, entry
         return word
 
     return signature, codegen
+
+
+@intrinsic
+def enter_children_of_lanes(typingctx, records, node, slabs, scales, lanes, entry, read_entries, near_x, near_y,
+                            near_z):
+    """:func:`enter_children_by_lane` with the roles of lanes and children exchanged: each child box
+    against the packet's rays at once, one vector lane a ray, for nodes that most of the packet's
+    rays enter (at the top of the tree, before they part ways). Returns ``(children, by_child)``:
+    the children some ray in ``lanes`` enters (bit ``c``), and byte ``c`` the rays in ``lanes``
+    entering child ``c`` (bit ``r``). Each lane's slab arithmetic is the lane test's, so the rays
+    enter the same children.
+
+    ``entry[c]`` gets a distance no greater than the nearest entry into child ``c`` of those rays,
+    as from :func:`enter_children_by_lane`, for a walk that orders or culls children by it
+    (``read_entries``: a closest hit, a listing): the nearest of the rays' float32 entries, times
+    the smallest of their scales (the largest, for a negative entry), which is the exact nearest
+    when the rays share their scale, as rays to one light from nearby points mostly do. An any hit
+    neither orders children nor narrows its rays' intervals, so its walk culls nothing an entered
+    child holds: it gets ``-inf``. The exact nearest distance of each child, eight float64 products reduced lane
+    by lane, cost as much as the exchanged test saved (forest-small-chair shadow rays, nodes
+    entered by all eight rays: closest / any hit 1.00 / 1.01 against the lane test, one thread,
+    CPU time, medians of 7)."""
+    signature = types.UniTuple(types.int64, 2)(records, node, slabs, scales, lanes, entry, read_entries, near_x,
+                                                  near_y, near_z)
+
+    def codegen(context, builder, sig, args):
+        array, node_index, slab_array, scale_array, lane_bits, entry_array, read_flag = args[:7]
+        intp = context.get_value_type(types.intp)
+        int64 = ir.IntType(64)
+        floats = ir.VectorType(ir.FloatType(), PACKET)
+        doubles = ir.VectorType(ir.DoubleType(), PACKET)
+        row = record_row(context, builder, sig.args[0], array, node_index, sig.args[1])
+        box_values = builder.bitcast(row, ir.FloatType().as_pointer())
+        slab_rows = builder.bitcast(context.make_array(sig.args[2])(context, builder, slab_array).data,
+                                    floats.as_pointer())
+        slab = [builder.load(builder.gep(slab_rows, [ir.Constant(intp, k)]), align=4) for k in range(LANE_SLAB_ROWS)]
+        active = builder.trunc(context.cast(builder, lane_bits, sig.args[4], types.int64), ir.IntType(PACKET))
+        in_lanes = builder.bitcast(active, ir.VectorType(ir.IntType(1), PACKET))
+        nears = [context.cast(builder, value, sig.args[7 + axis], types.intp) for axis, value in enumerate(args[7:])]
+        blocks = nears + [builder.sub(ir.Constant(intp, 2 * axis + 3), near) for axis, near in enumerate(nears)]
+        face_rows = [builder.gep(box_values, [builder.mul(block, ir.Constant(intp, WIDTH))]) for block in blocks]
+        missed = ir.Constant(floats, [float("inf")] * PACKET)
+        children = int64(0)
+        by_child = int64(0)
+        entries = []
+        for child in range(WIDTH):
+            faces = [splat(builder, builder.load(builder.gep(face_row, [ir.Constant(intp, child)])), floats)
+                     for face_row in face_rows]
+            enter, exit_ = slab[_ENTER_FROM], slab[_EXIT_BY]
+            for axis in range(3):
+                enter, exit_ = tighten_to_slab(builder, faces[axis], faces[axis + 3], slab[_NEAR_ORIGIN + axis],
+                                               slab[_INVERSE + axis], enter, exit_,
+                                               far_origin=slab[_FAR_ORIGIN + axis])
+            used = builder.fadd(faces[0], faces[3])
+            entered = builder.and_(builder.and_(builder.fcmp_ordered("<=", enter, exit_), in_lanes),
+                                   builder.fcmp_ordered("ord", used, used))
+            rays = builder.zext(builder.bitcast(entered, ir.IntType(PACKET)), int64)
+            by_child = builder.or_(by_child, builder.shl(rays, int64(8 * child)))
+            some = builder.zext(builder.icmp_unsigned("!=", rays, int64(0)), int64)
+            children = builder.or_(children, builder.shl(some, int64(child)))
+            entries.append(builder.select(entered, enter, missed))
+        entry_rows = builder.bitcast(context.make_array(sig.args[5])(context, builder, entry_array).data,
+                                     doubles.as_pointer())
+        reading = context.cast(builder, read_flag, sig.args[6], types.boolean)
+        with builder.if_else(reading) as (read, unread):
+            with read:
+                scale_rows = builder.bitcast(context.make_array(sig.args[3])(context, builder, scale_array).data,
+                                             doubles.as_pointer())
+                scale = builder.load(scale_rows, align=8)
+                nearest = builder.fpext(_smallest_of_each(builder, entries), doubles)
+                factor = builder.select(builder.fcmp_ordered(">=", nearest, ir.Constant(doubles, [0.0] * PACKET)),
+                                        splat(builder, _reduce_lanes(builder, scale, "<"), doubles),
+                                        splat(builder, _reduce_lanes(builder, scale, ">"), doubles))
+                builder.store(builder.fmul(nearest, factor), entry_rows, align=8)
+            with unread:
+                builder.store(ir.Constant(doubles, [float("-inf")] * PACKET), entry_rows, align=8)
+        return context.make_tuple(builder, sig.return_type, (children, by_child))
+
+    return signature, codegen
+
+
+def _smallest_of_each(builder, vectors):
+    """The IR of the vector whose lane ``k`` is the smallest lane of ``vectors[k]`` (as many vectors
+    as lanes, a power of two): pairs of vectors halved and merged, level after level."""
+    count = len(vectors)
+    width = count // 2
+    while len(vectors) > 1:
+        merged = []
+        for first, second in zip(vectors[0::2], vectors[1::2]):
+            order = [[block + k for block in range(0, 2 * count, 2 * width) for k in range(width)],
+                     [block + width + k for block in range(0, 2 * count, 2 * width) for k in range(width)]]
+            low, high = (builder.shuffle_vector(first, second, ir.Constant(ir.VectorType(ir.IntType(32), count), o))
+                         for o in order)
+            merged.append(builder.select(builder.fcmp_ordered("<", high, low), high, low))
+        vectors = merged
+        width //= 2
+    return vectors[0]
 
 
 @inline_kernel
@@ -407,19 +505,13 @@ def load_packet(typingctx, origins, directions, first, second, state, bounds):
 
     def codegen(context, builder, sig, args):
         origin, inverse = _load_rays(context, builder, sig, args)
-        doubles = ir.VectorType(ir.DoubleType(), PACKET)
         bounds_data = context.make_array(sig.args[5])(context, builder, args[5]).data
-        zero = ir.Constant(doubles, [0.0] * PACKET)
-        mixed = ir.IntType(1)(0)
         for axis in range(3):
-            signs = builder.bitcast(builder.fcmp_ordered(">=", inverse[axis], zero), ir.IntType(PACKET))
-            positive = builder.icmp_unsigned("==", signs, ir.IntType(PACKET)(-1))
-            negative = builder.icmp_unsigned("==", signs, ir.IntType(PACKET)(0))
-            mixed = builder.or_(mixed, builder.not_(builder.or_(positive, negative)))
+            positive = builder.icmp_unsigned("==", _positive_lanes(builder, inverse[axis]), ir.IntType(PACKET)(-1))
             o_low, o_high = _reduce_lanes(builder, origin[axis], "<"), _reduce_lanes(builder, origin[axis], ">")
             _store_axis_bounds(builder, bounds_data, axis, positive, o_low, o_high,
                                _reduce_lanes(builder, inverse[axis], "<"), _reduce_lanes(builder, inverse[axis], ">"))
-        return builder.zext(mixed, ir.IntType(64))
+        return _mixed_signs(builder, inverse)
 
     return signature, codegen
 
@@ -429,14 +521,15 @@ def load_lanes(typingctx, origins, directions, first, second, state):
     """:func:`load_packet` without the packet's bounds, for packets whose rays are tested lane by
     lane: the origins and inverse directions of the :data:`PACKET` rays into rows 0-5 of ``state``,
     one lane a ray, by four loads per array (:func:`rayaccel._ray_lanes.rays_by_axis`), shuffled
-    from rows to lanes, and three vector divisions."""
+    from rows to lanes, and three vector divisions. Returns 1 when the rays point to both sides
+    along some axis, else 0."""
     if not rays_readable(origins, directions):
         return None
-    signature = types.void(origins, directions, first, second, state)
+    signature = types.int64(origins, directions, first, second, state)
 
     def codegen(context, builder, sig, args):
-        _load_rays(context, builder, sig, args)
-        return context.get_dummy_value()
+        _, inverse = _load_rays(context, builder, sig, args)
+        return _mixed_signs(builder, inverse)
 
     return signature, codegen
 
@@ -458,6 +551,25 @@ def _load_rays(context, builder, sig, args):
     for k, vector in enumerate(origin + inverse):
         builder.store(vector, builder.gep(state_data, [ir.Constant(intp, k)]), align=8)
     return origin, inverse
+
+
+def _positive_lanes(builder, inverse):
+    """The IR of the lanes (bit ``r`` for lane ``r``) whose inverse direction in ``inverse`` is not
+    negative."""
+    zero = ir.Constant(inverse.type, [0.0] * PACKET)
+    return builder.bitcast(builder.fcmp_ordered(">=", inverse, zero), ir.IntType(PACKET))
+
+
+def _mixed_signs(builder, inverse):
+    """The IR of 1 (int64) when the lanes' inverse directions (three vectors) have both signs along
+    some axis, else 0."""
+    mixed = ir.IntType(1)(0)
+    for axis in range(3):
+        signs = _positive_lanes(builder, inverse[axis])
+        shared = builder.or_(builder.icmp_unsigned("==", signs, ir.IntType(PACKET)(-1)),
+                             builder.icmp_unsigned("==", signs, ir.IntType(PACKET)(0)))
+        mixed = builder.or_(mixed, builder.not_(shared))
+    return builder.zext(mixed, ir.IntType(64))
 
 
 def _store_axis_bounds(builder, bounds_data, axis, positive, o_low, o_high, inv_low, inv_high):

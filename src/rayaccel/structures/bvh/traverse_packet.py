@@ -106,6 +106,7 @@ from .packet_slab import (
     enter_child_lanes,
     enter_children_by_lane,
     enter_children_interval,
+    enter_children_of_lanes,
     load_lane_limits,
     load_lanes,
     load_packet,
@@ -116,7 +117,7 @@ from .packet_slab import (
 from .packet_triangle import HIT_ROW, HIT_ROWS, NOT_SHARED, SHEAR_ROW, hits_by_lane, set_up_shear
 from .traverse_wide import push_child, visit_leaf
 from .wide import child_count, child_link
-from .wide_slab import box_reach, highest_bit
+from .wide_slab import bit_count, box_reach, highest_bit
 
 __all__ = ["LANE_ROWS", "wide_packet_kernel", "wide_packet_crossings_kernel", "lane_packet_kernel",
            "lane_packet_crossings_kernel"]
@@ -132,6 +133,14 @@ _V = 9 * PACKET
 _JUMP = 8.0
 """How many times the mean of its other steps a step between neighbouring lanes must be for the
 packet's rays to be walked one by one (:func:`_lanes_jump`)."""
+_CHILD_TEST_LANES = 6
+"""Rays of a lane packet (of eight) that must be walking a node for it to be tested child by child,
+all the rays at once (:func:`.packet_slab.enter_children_of_lanes`), rather than ray by ray: at the
+top of the tree all eight rays walk most nodes (53 % of the forest's shadow packets' node visits,
+39 % of the full dragon's). Shadow rays, one thread, CPU time, medians of 7-9 alternating in one
+process, closest / any hit, against ray by ray everywhere: from six rays, forest 1.03-1.05 /
+1.05-1.14, full dragon 1.00 / 1.05; from five, forest 1.02 / 1.06, dragon 1.01 / 1.04; from four,
+forest 1.00 / 1.06."""
 _HIT_T, _HIT_U, _HIT_V = ((HIT_ROW + k) * PACKET for k in range(HIT_ROWS))
 _SCALES = (HIT_ROW + HIT_ROWS) * PACKET
 LANE_ROWS = HIT_ROW + HIT_ROWS + 2
@@ -383,8 +392,7 @@ def _packet_walk(ray_first, ray_end, tid, root_box, records, links, prim_order, 
             n_lanes = min(PACKET, span_rays - packet)
             loaded = n_lanes == PACKET
             if loaded and by_lane:
-                mixed = False
-                load_lanes(origins, directions, packet_first, packet_second, state)
+                mixed = load_lanes(origins, directions, packet_first, packet_second, state) != 0
             elif loaded:
                 mixed = load_packet(origins, directions, packet_first, packet_second, state, bounds) != 0
                 mixed = mixed or (packet_step == PACKET and _lanes_jump(directions, packet_first, packet_second))
@@ -418,6 +426,9 @@ def _packet_walk(ray_first, ray_end, tid, root_box, records, links, prim_order, 
                         bound_lane_slab(slabs, scales, r, state[_T_MIN + r], state[_BEST + r])
             lanes_set_up = False
             shared_axes, kx, ky, kz = False, 0, 0, 0
+            near_x = 0 if state[3 * PACKET] >= 0.0 else 3
+            near_y = 1 if state[4 * PACKET] >= 0.0 else 4
+            near_z = 2 if state[5 * PACKET] >= 0.0 else 5
             group = 1 if mixed and not by_lane else n_lanes
             for group_first in range(0, n_lanes, group):
                 active = ((1 << group) - 1) << group_first
@@ -436,7 +447,12 @@ def _packet_walk(ray_first, ray_end, tid, root_box, records, links, prim_order, 
                 sp = 0
                 while True:
                     if node >= 0:
-                        if by_lane:
+                        if by_lane and not mixed and bit_count(lanes) >= _CHILD_TEST_LANES:
+                            children, lanes_by_child = enter_children_of_lanes(records, node, slabs, scales, lanes,
+                                                                               child_entry, not any_hit, near_x,
+                                                                               near_y, near_z)
+                            lanes_by_child = unsigned(lanes_by_child)
+                        elif by_lane:
                             lane_children = enter_children_by_lane(records, node, slabs, scales, lanes, child_entry)
                             children = _any_lane(lane_children)
                             lanes_by_child = _lanes_by_child(lane_children, lanes)

@@ -70,8 +70,8 @@ from ..._jit import inline_kernel, thread_rows
 from .wide import WIDTH, is_record_array, record_row
 
 __all__ = ["SLAB_FLOATS", "SLAB_SLACK", "child_entry_rows", "enter_children", "slab_ray", "slab_ray_ir", "slab_limits",
-           "scaled_limit", "scaled_limit_ir", "box_reach", "highest_bit", "lowest_bit", "splat", "tighten_lanes",
-           "tighten_to_slab", "entered_children"]
+           "scaled_limit", "scaled_limit_ir", "box_reach", "highest_bit", "lowest_bit", "bit_count", "splat",
+           "tighten_lanes", "tighten_to_slab", "entered_children"]
 
 SLAB_FLOATS = 11
 """Numbers of a ray's :func:`slab_ray`."""
@@ -331,5 +331,18 @@ def lowest_bit(typingctx, mask):
 
     def codegen(context, builder, sig, args):
         return _zero_bits(builder, "cttz", context.cast(builder, args[0], sig.args[0], types.int64))
+
+    return signature, codegen
+
+
+@intrinsic
+def bit_count(typingctx, mask):
+    """How many bits of ``mask`` (an int64) are set: one ``popcnt``."""
+    signature = types.int64(mask)
+
+    def codegen(context, builder, sig, args):
+        int64 = ir.IntType(64)
+        count = cgutils.get_or_insert_function(builder.module, ir.FunctionType(int64, [int64]), "llvm.ctpop.i64")
+        return builder.call(count, [context.cast(builder, args[0], sig.args[0], types.int64)])
 
     return signature, codegen
