@@ -23,18 +23,16 @@ from rayaccel.ray_order import MIN_PACKET_RAYS, lane_packets_pay, packets_pay
 from rayaccel.ray_tiles import image_row_length
 from rayaccel.rays import prepare_rays
 from rayaccel.structures.bvh import accelerator, traverse_packet
-from rayaccel.structures.bvh.packet_slab import (
+from rayaccel.structures.bvh.lane_slab import (
     LANE_SLAB_ROWS,
-    PACKET,
-    PACKET_ROWS,
     bound_lane_slab,
     bound_lane_slabs,
     enter_children_by_lane,
     enter_children_of_lanes,
-    load_lane_limits,
     set_up_lane_slab,
     set_up_lane_slabs,
 )
+from rayaccel.structures.bvh.packet_slab import PACKET, PACKET_ROWS, load_lane_limits
 from rayaccel.structures.bvh.packet_triangle import (
     HIT_ROW,
     NOT_SHARED,

@@ -21,10 +21,11 @@ from .binary_from_wide import binary_from_wide, slot_depths
 from .build_ploc import build_ploc
 from .build_top_down import MORTON, OBJECT_MEDIAN, SAH_BINNED, SAH_SWEEP, SPATIAL_MEDIAN, build_top_down
 from .fast_winding import winding_moments
+from .lane_slab import LANE_SLAB_ROWS
 from .layout import BvhArrays, node_rows, pack_nodes
 from .nearest import bvh_nearest_kernel
 from .nodes import box_surface_areas, grow_by_rounding_margin, node_depths, sah_cost
-from .packet_slab import BOUND_VALUES, LANE_SLAB_ROWS, PACKET
+from .packet_slab import BOUND_VALUES, PACKET
 from .refit import refit_bvh, refit_geometry_boxes
 from .reinsertion import reinsert_subtrees
 from .split_morton import morton_codes

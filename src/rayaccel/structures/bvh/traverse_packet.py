@@ -64,7 +64,7 @@ medians of 9 in alternating processes: any hit 11.6 -> 9.6 ms, closest hit 22.3 
 Rays that start apart but head alike, such as shadow rays from neighbouring hits to one
 light, would make the packet's interval bounds loose (measured on the full dragon's: 0.3
 of the single walk's speed). Their packets test each ray against the eight child boxes
-instead (:func:`.packet_slab.enter_children_by_lane`: for each lane the single-ray walk's
+instead (:func:`.lane_slab.enter_children_by_lane`: for each lane the single-ray walk's
 conservative float32 test, :func:`.wide_slab.enter_children`, so the boxes each ray would
 enter alone; against the exact float64 test in each lane, one thread, CPU time, shadow rays,
 closest / any hit: forest 1.03-1.04 / 1.05-1.06, full dragon 1.04-1.06 / 1.04-1.09), and
@@ -96,23 +96,25 @@ from ...geometry.primitive import ray_setup
 from ...ray_tiles import TILE_COLUMNS, TILE_ROWS, first_tile, lane_ray, next_tile, run_rays
 from ...rays import ray_at, ray_limit, result_row
 from ..actions import NEAREST, finish_misses_in_mode, finish_ray_in_mode, is_closer
+from .lane_slab import (
+    bound_lane_slab,
+    bound_lane_slabs,
+    enter_children_by_lane,
+    enter_children_of_lanes,
+    narrow_lane_slab,
+    set_up_lane_slab,
+    set_up_lane_slabs,
+)
 from .packet_slab import (
     BOUND_BEST,
     BOUND_T_MIN,
     PACKET,
-    bound_lane_slab,
-    bound_lane_slabs,
     bound_span,
     enter_child_lanes,
-    enter_children_by_lane,
     enter_children_interval,
-    enter_children_of_lanes,
     load_lane_limits,
     load_lanes,
     load_packet,
-    narrow_lane_slab,
-    set_up_lane_slab,
-    set_up_lane_slabs,
 )
 from .packet_triangle import HIT_ROW, HIT_ROWS, NOT_SHARED, SHEAR_ROW, hits_by_lane, set_up_shear
 from .traverse_wide import push_child, visit_leaf
@@ -135,7 +137,7 @@ _JUMP = 8.0
 packet's rays to be walked one by one (:func:`_lanes_jump`)."""
 _CHILD_TEST_LANES = 6
 """Rays of a lane packet (of eight) that must be walking a node for it to be tested child by child,
-all the rays at once (:func:`.packet_slab.enter_children_of_lanes`), rather than ray by ray: at the
+all the rays at once (:func:`.lane_slab.enter_children_of_lanes`), rather than ray by ray: at the
 top of the tree all eight rays walk most nodes (53 % of the forest's shadow packets' node visits,
 39 % of the full dragon's). Shadow rays, one thread, CPU time, medians of 7-9 alternating in one
 process, closest / any hit, against ray by ray everywhere: from six rays, forest 1.03-1.05 /
@@ -148,7 +150,7 @@ LANE_ROWS = HIT_ROW + HIT_ROWS + 2
 :func:`.packet_slab.enter_child_lanes` reads, its rays' best ``u`` and ``v``, their
 triangle-test constants (:data:`.packet_triangle.SHEAR_ROW`), their hits on the last
 triangle tested (:data:`.packet_triangle.HIT_ROW`), then the scales of their float32 box
-tests (:func:`.packet_slab.set_up_lane_slab`)."""
+tests (:func:`.lane_slab.set_up_lane_slab`)."""
 
 
 @inline_kernel

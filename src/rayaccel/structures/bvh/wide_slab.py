@@ -108,7 +108,7 @@ def slab_ray(typingctx, ox, oy, oz, dx, dy, dz, ix, iy, iz, reach_x, reach_y, re
 
 def slab_ray_ir(builder, origin, direction, inverse, reach):
     """The IR of :func:`slab_ray` on float64 values, or lane for lane on vectors of them (the
-    packets' lanes, :func:`.packet_slab.set_up_lane_slabs`): the nine float32 numbers (or
+    packets' lanes, :func:`.lane_slab.set_up_lane_slabs`): the nine float32 numbers (or
     vectors), then ``s`` and ``1 / s``."""
     kind = origin[0].type
     lanes = kind.count if isinstance(kind, ir.VectorType) else None
@@ -185,7 +185,7 @@ def scaled_limit(typingctx, t, unscale, side):
 
 def scaled_limit_ir(builder, t, unscale, side):
     """The IR of :func:`scaled_limit` on float64 values, or lane for lane on vectors of them (a
-    packet's lanes, :func:`.packet_slab.bound_lane_slabs`): ``t * unscale``, moved by ``side``
+    packet's lanes, :func:`.lane_slab.bound_lane_slabs`): ``t * unscale``, moved by ``side``
     times ``2**-22`` of its magnitude plus ``2**-140``, rounded to float32 (or a vector of them)."""
     kind = t.type
     lanes = kind.count if isinstance(kind, ir.VectorType) else None
