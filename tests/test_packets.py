@@ -21,7 +21,7 @@ from rayaccel.geometry.primitive import ray_setup
 from rayaccel.geometry.triangle import intersect_triangle
 from rayaccel.ray_order import MIN_PACKET_RAYS, lane_packets_pay, packets_pay
 from rayaccel.ray_tiles import image_row_length
-from rayaccel.rays import prepare_rays
+from rayaccel.rays import prepare_rays, ray_limit
 from rayaccel.structures.bvh import accelerator, traverse_packet
 from rayaccel.structures.bvh.lane_slab import (
     LANE_SLAB_ROWS,
@@ -343,10 +343,7 @@ def _bound_lanes(t_min, t_max, lanes, slabs, scales):
     """Each lane's interval in ``slabs``, one ray at a time, from the batch's limits of the rays
     ``lanes`` (:func:`rayaccel.rays.ray_limit`: one value for all when the arrays hold one)."""
     for r in range(PACKET):
-        i = lanes[r]
-        low = t_min[i] if t_min.shape[0] > 1 else t_min[0]
-        high = t_max[i] if t_max.shape[0] > 1 else t_max[0]
-        bound_lane_slab(slabs, scales, r, low, high)
+        bound_lane_slab(slabs, scales, r, ray_limit(t_min, lanes[r]), ray_limit(t_max, lanes[r]))
 
 
 @numba.njit

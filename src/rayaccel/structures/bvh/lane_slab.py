@@ -23,7 +23,7 @@ from numba.extending import intrinsic
 
 from ..._jit import inline_kernel
 from ..._ray_lanes import rays_by_axis, rays_readable
-from .packet_slab import PACKET, reduce_lanes
+from .packet_slab import PACKET, reduce_lanes, vector_rows
 from .wide import WIDTH, record_row
 from .wide_slab import scaled_limit, scaled_limit_ir, slab_ray, slab_ray_ir, splat, tighten_to_slab
 
@@ -109,8 +109,7 @@ def enter_children_by_lane(typingctx, records, node, slabs, scales, lanes, entry
             merged_word.add_incoming(word, before)
             merged_word.add_incoming(lane_word, tested)
             nearest, word = merged_nearest, merged_word
-        entry_view = context.make_array(sig.args[5])(context, builder, entry_array)
-        builder.store(nearest, builder.bitcast(entry_view.data, doubles.as_pointer()), align=8)
+        builder.store(nearest, vector_rows(context, builder, sig.args[5], entry_array, doubles), align=8)
         return word
 
     return signature, codegen
@@ -136,8 +135,8 @@ def enter_children_of_lanes(typingctx, records, node, slabs, scales, lanes, entr
     (eight float64 products, reduced) for every walk and chose each lane's near faces, ran at 1.00 /
     1.01 of the lane test (forest-small-chair shadow rays, closest / any hit, nodes walked by all
     eight rays, one thread, CPU time, medians of 7)."""
-    signature = types.UniTuple(types.int64, 2)(records, node, slabs, scales, lanes, entry, read_entries, near_x,
-                                                  near_y, near_z)
+    signature = types.Tuple((types.int64, types.uint64))(records, node, slabs, scales, lanes, entry, read_entries,
+                                                        near_x, near_y, near_z)
 
     def codegen(context, builder, sig, args):
         array, node_index, slab_array, scale_array, lane_bits, entry_array, read_flag = args[:7]
@@ -147,8 +146,7 @@ def enter_children_of_lanes(typingctx, records, node, slabs, scales, lanes, entr
         doubles = ir.VectorType(ir.DoubleType(), PACKET)
         row = record_row(context, builder, sig.args[0], array, node_index, sig.args[1])
         box_values = builder.bitcast(row, ir.FloatType().as_pointer())
-        slab_rows = builder.bitcast(context.make_array(sig.args[2])(context, builder, slab_array).data,
-                                    floats.as_pointer())
+        slab_rows = vector_rows(context, builder, sig.args[2], slab_array, floats)
         slab = [builder.load(builder.gep(slab_rows, [ir.Constant(intp, k)]), align=4) for k in range(LANE_SLAB_ROWS)]
         active = builder.trunc(context.cast(builder, lane_bits, sig.args[4], types.int64), ir.IntType(PACKET))
         in_lanes = builder.bitcast(active, ir.VectorType(ir.IntType(1), PACKET))
@@ -175,14 +173,11 @@ def enter_children_of_lanes(typingctx, records, node, slabs, scales, lanes, entr
             some = builder.zext(builder.icmp_unsigned("!=", rays, int64(0)), int64)
             children = builder.or_(children, builder.shl(some, int64(child)))
             entries.append(builder.select(entered, enter, missed))
-        entry_rows = builder.bitcast(context.make_array(sig.args[5])(context, builder, entry_array).data,
-                                     doubles.as_pointer())
+        entry_rows = vector_rows(context, builder, sig.args[5], entry_array, doubles)
         reading = context.cast(builder, read_flag, sig.args[6], types.boolean)
         with builder.if_else(reading) as (read, unread):
             with read:
-                scale_rows = builder.bitcast(context.make_array(sig.args[3])(context, builder, scale_array).data,
-                                             doubles.as_pointer())
-                scale = builder.load(scale_rows, align=8)
+                scale = builder.load(vector_rows(context, builder, sig.args[3], scale_array, doubles), align=8)
                 nearest = builder.fpext(_smallest_of_each(builder, entries), doubles)
                 factor = builder.select(builder.fcmp_ordered(">=", nearest, ir.Constant(doubles, [0.0] * PACKET)),
                                         splat(builder, reduce_lanes(builder, scale, "<"), doubles),
@@ -259,18 +254,15 @@ def set_up_lane_slabs(typingctx, origins, directions, first, second, state, slab
         second_start = context.cast(builder, second_row, sig.args[3], types.intp)
         origin = rays_by_axis(context, builder, sig.args[0], origin_array, row, second_start)
         direction = rays_by_axis(context, builder, sig.args[1], direction_array, row, second_start)
-        state_data = builder.bitcast(context.make_array(sig.args[4])(context, builder, state_array).data,
-                                     doubles.as_pointer())
+        state_data = vector_rows(context, builder, sig.args[4], state_array, doubles)
         inverse = [builder.load(builder.gep(state_data, [ir.Constant(intp, 3 + axis)]), align=8) for axis in range(3)]
         reach = [splat(builder, context.cast(builder, value, sig.args[7 + axis], types.float64), doubles)
                  for axis, value in enumerate(args[7:10])]
         values = slab_ray_ir(builder, origin, direction, inverse, reach)
-        slab_data = builder.bitcast(context.make_array(sig.args[5])(context, builder, slab_array).data,
-                                    floats.as_pointer())
+        slab_data = vector_rows(context, builder, sig.args[5], slab_array, floats)
         for k, vector in enumerate(values[:9]):
             builder.store(vector, builder.gep(slab_data, [ir.Constant(intp, k)]), align=4)
-        scale_data = builder.bitcast(context.make_array(sig.args[6])(context, builder, scale_array).data,
-                                     doubles.as_pointer())
+        scale_data = vector_rows(context, builder, sig.args[6], scale_array, doubles)
         for k, vector in enumerate(values[9:]):
             builder.store(vector, builder.gep(scale_data, [ir.Constant(intp, k)]), align=8)
         return context.get_dummy_value()
@@ -295,9 +287,9 @@ def narrow_lane_slab(slabs, scales, r, best):
 @intrinsic
 def bound_lane_slabs(typingctx, slabs, scales, state):
     """:func:`bound_lane_slab` for every lane at once: each lane's interval from rows 6 and 7 of
-    ``state`` (:func:`.packet_slab.load_lane_limits`) into ``slabs``, on its scaled direction, in vector
-    instructions (:func:`.wide_slab.scaled_limit_ir`, the scalar bound's arithmetic lane for lane,
-    so to the bit what :func:`bound_lane_slab` writes)."""
+    ``state`` (:func:`.packet_slab.load_lane_limits`) into ``slabs``, on its scaled direction, in
+    vector instructions (:func:`.wide_slab.scaled_limit_ir`, the scalar bound's arithmetic lane for
+    lane, so to the bit what :func:`bound_lane_slab` writes)."""
     signature = types.void(slabs, scales, state)
 
     def codegen(context, builder, sig, args):
@@ -305,11 +297,8 @@ def bound_lane_slabs(typingctx, slabs, scales, state):
         doubles = ir.VectorType(ir.DoubleType(), PACKET)
         floats = ir.VectorType(ir.FloatType(), PACKET)
 
-        def rows(k, vector_type):
-            return builder.bitcast(context.make_array(sig.args[k])(context, builder, args[k]).data,
-                                   vector_type.as_pointer())
-
-        slab_rows, scale_rows, state_rows = rows(0, floats), rows(1, doubles), rows(2, doubles)
+        slab_rows, scale_rows, state_rows = (vector_rows(context, builder, sig.args[k], args[k], vector_type)
+                                             for k, vector_type in enumerate((floats, doubles, doubles)))
         unscale = builder.load(builder.gep(scale_rows, [ir.Constant(intp, 1)]), align=8)
         for row, limit, side in ((_ENTER_FROM, 6, -1.0), (_EXIT_BY, 7, 1.0)):
             t = builder.load(builder.gep(state_rows, [ir.Constant(intp, limit)]), align=8)

@@ -39,7 +39,8 @@ from .wide import WIDTH, record_row
 from .wide_slab import entered_children, splat, tighten_lanes, tighten_to_slab
 
 __all__ = ["PACKET", "PACKET_ROWS", "BOUND_T_MIN", "BOUND_BEST", "BOUND_VALUES", "enter_children_interval",
-           "enter_child_lanes", "load_lane_limits", "load_packet", "load_lanes", "bound_span", "reduce_lanes"]
+           "enter_child_lanes", "load_lane_limits", "load_packet", "load_lanes", "bound_span", "reduce_lanes",
+           "vector_rows"]
 
 PACKET = LANES
 """Rays per packet, one per vector lane."""
@@ -138,9 +139,10 @@ def load_lane_limits(typingctx, t_min, t_max, first, second, state):
     :func:`load_packet` takes them, from a batch's ``t_min`` and ``t_max`` (float64, one value
     per ray or one for all, :func:`rayaccel.rays.ray_limit`): two vector loads each, or one
     value spread over the lanes. Lane by lane, with the bounds of
-    :func:`.lane_slab.bound_lane_slab`, the set-up of a shadow packet's limits took 51 of the 240
-    instructions a ray that misses the scene's box costs (forest-small-chair, counted on AVX2
-    code). Loaded and bounded so (with :func:`.lane_slab.bound_lane_slabs`, and :func:`load_lanes`
+    :func:`.lane_slab.bound_lane_slab` and the lanes' best-hit fields, the loop over a shadow
+    packet's lanes took 51 of the 240 instructions a ray that misses the scene's box costs, 8
+    after (its stores of the best-hit fields; forest-small-chair, counted on AVX2 code). Loaded
+    and bounded so (with :func:`.lane_slab.bound_lane_slabs`, and :func:`load_lanes`
     for the rays), one thread, CPU time, medians of 7 alternating in one process, closest / any
     hit: forest shadow rays 1.06 / 1.10, camera rays 1.06 / 1.10; full dragon shadow rays 1.04 /
     1.04, camera rays 1.05 / 1.01."""
@@ -152,10 +154,8 @@ def load_lane_limits(typingctx, t_min, t_max, first, second, state):
 
     def codegen(context, builder, sig, args):
         intp = context.get_value_type(types.intp)
-        doubles = ir.VectorType(ir.DoubleType(), PACKET)
         rows = [context.cast(builder, args[k], sig.args[k], types.intp) for k in (2, 3)]
-        state_data = builder.bitcast(context.make_array(sig.args[4])(context, builder, args[4]).data,
-                                     doubles.as_pointer())
+        state_data = vector_rows(context, builder, sig.args[4], args[4], ir.VectorType(ir.DoubleType(), PACKET))
         for k in range(2):
             lanes = _limit_lanes(context, builder, sig.args[k], args[k], *rows)
             builder.store(lanes, builder.gep(state_data, [ir.Constant(intp, 6 + k)]), align=8)
@@ -205,13 +205,14 @@ def load_packet(typingctx, origins, directions, first, second, state, bounds):
 
     def codegen(context, builder, sig, args):
         origin, inverse = _load_rays(context, builder, sig, args)
+        signs = [_positive_lanes(builder, vector) for vector in inverse]
         bounds_data = context.make_array(sig.args[5])(context, builder, args[5]).data
         for axis in range(3):
-            positive = builder.icmp_unsigned("==", _positive_lanes(builder, inverse[axis]), ir.IntType(PACKET)(-1))
+            positive = builder.icmp_unsigned("==", signs[axis], ir.IntType(PACKET)(-1))
             o_low, o_high = reduce_lanes(builder, origin[axis], "<"), reduce_lanes(builder, origin[axis], ">")
             _store_axis_bounds(builder, bounds_data, axis, positive, o_low, o_high,
                                reduce_lanes(builder, inverse[axis], "<"), reduce_lanes(builder, inverse[axis], ">"))
-        return _mixed_signs(builder, inverse)
+        return _mixed_signs(builder, signs)
 
     return signature, codegen
 
@@ -229,7 +230,7 @@ def load_lanes(typingctx, origins, directions, first, second, state):
 
     def codegen(context, builder, sig, args):
         _, inverse = _load_rays(context, builder, sig, args)
-        return _mixed_signs(builder, inverse)
+        return _mixed_signs(builder, [_positive_lanes(builder, vector) for vector in inverse])
 
     return signature, codegen
 
@@ -246,8 +247,7 @@ def _load_rays(context, builder, sig, args):
     direction = rays_by_axis(context, builder, sig.args[1], args[1], row, second_row)
     ones = ir.Constant(doubles, [1.0] * PACKET)
     inverse = [builder.fdiv(ones, d) for d in direction]
-    state_data = builder.bitcast(context.make_array(sig.args[4])(context, builder, args[4]).data,
-                                 doubles.as_pointer())
+    state_data = vector_rows(context, builder, sig.args[4], args[4], doubles)
     for k, vector in enumerate(origin + inverse):
         builder.store(vector, builder.gep(state_data, [ir.Constant(intp, k)]), align=8)
     return origin, inverse
@@ -260,16 +260,21 @@ def _positive_lanes(builder, inverse):
     return builder.bitcast(builder.fcmp_ordered(">=", inverse, zero), ir.IntType(PACKET))
 
 
-def _mixed_signs(builder, inverse):
-    """The IR of 1 (int64) when the lanes' inverse directions (three vectors) have both signs along
-    some axis, else 0."""
+def _mixed_signs(builder, signs):
+    """The IR of 1 (int64) when the lanes' inverse directions have both signs along some axis, from
+    each axis's :func:`_positive_lanes`, else 0."""
     mixed = ir.IntType(1)(0)
-    for axis in range(3):
-        signs = _positive_lanes(builder, inverse[axis])
-        shared = builder.or_(builder.icmp_unsigned("==", signs, ir.IntType(PACKET)(-1)),
-                             builder.icmp_unsigned("==", signs, ir.IntType(PACKET)(0)))
+    for axis_signs in signs:
+        shared = builder.or_(builder.icmp_unsigned("==", axis_signs, ir.IntType(PACKET)(-1)),
+                             builder.icmp_unsigned("==", axis_signs, ir.IntType(PACKET)(0)))
         mixed = builder.or_(mixed, builder.not_(shared))
     return builder.zext(mixed, ir.IntType(64))
+
+
+def vector_rows(context, builder, array_type, array, vector_type):
+    """The IR of a pointer to the rows of ``vector_type`` that a contiguous array's data holds (a
+    packet's state or slab rows, one row of :data:`PACKET` numbers a vector)."""
+    return builder.bitcast(context.make_array(array_type)(context, builder, array).data, vector_type.as_pointer())
 
 
 def _store_axis_bounds(builder, bounds_data, axis, positive, o_low, o_high, inv_low, inv_high):

@@ -453,7 +453,6 @@ def _packet_walk(ray_first, ray_end, tid, root_box, records, links, prim_order, 
                             children, lanes_by_child = enter_children_of_lanes(records, node, slabs, scales, lanes,
                                                                                child_entry, not any_hit, near_x,
                                                                                near_y, near_z)
-                            lanes_by_child = unsigned(lanes_by_child)
                         elif by_lane:
                             lane_children = enter_children_by_lane(records, node, slabs, scales, lanes, child_entry)
                             children = _any_lane(lane_children)

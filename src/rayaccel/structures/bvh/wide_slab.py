@@ -110,24 +110,13 @@ def slab_ray_ir(builder, origin, direction, inverse, reach):
     """The IR of :func:`slab_ray` on float64 values, or lane for lane on vectors of them (the
     packets' lanes, :func:`.lane_slab.set_up_lane_slabs`): the nine float32 numbers (or
     vectors), then ``s`` and ``1 / s``."""
-    kind = origin[0].type
-    lanes = kind.count if isinstance(kind, ir.VectorType) else None
-    double = ir.DoubleType()
+    shape = _Shape(origin[0], builder)
+    kind, single, number, call = shape.kind, shape.single, shape.number, shape.call
     int64 = ir.IntType(64)
-    integers = int64 if lanes is None else ir.VectorType(int64, lanes)
-    single = ir.FloatType() if lanes is None else ir.VectorType(ir.FloatType(), lanes)
-    suffix = "f64" if lanes is None else f"v{lanes}f64"
-
-    def number(value):
-        return double(value) if lanes is None else ir.Constant(kind, [value] * lanes)
+    integers = int64 if shape.lanes is None else ir.VectorType(int64, shape.lanes)
 
     def integer(value):
-        return int64(value) if lanes is None else ir.Constant(integers, [value] * lanes)
-
-    def call(name, *values):
-        function = cgutils.get_or_insert_function(builder.module, ir.FunctionType(kind, [kind] * len(values)),
-                                                  f"llvm.{name}.{suffix}")
-        return builder.call(function, list(values))
+        return ir.Constant(integers, value if shape.lanes is None else [value] * shape.lanes)
 
     def larger(a, b):
         return builder.select(builder.fcmp_ordered(">", a, b), a, b)
@@ -187,18 +176,33 @@ def scaled_limit_ir(builder, t, unscale, side):
     """The IR of :func:`scaled_limit` on float64 values, or lane for lane on vectors of them (a
     packet's lanes, :func:`.lane_slab.bound_lane_slabs`): ``t * unscale``, moved by ``side``
     times ``2**-22`` of its magnitude plus ``2**-140``, rounded to float32 (or a vector of them)."""
-    kind = t.type
-    lanes = kind.count if isinstance(kind, ir.VectorType) else None
-    suffix = "f64" if lanes is None else f"v{lanes}f64"
-    single = ir.FloatType() if lanes is None else ir.VectorType(ir.FloatType(), lanes)
-
-    def number(value):
-        return ir.DoubleType()(value) if lanes is None else ir.Constant(kind, [value] * lanes)
-
-    fabs = cgutils.get_or_insert_function(builder.module, ir.FunctionType(kind, [kind]), f"llvm.fabs.{suffix}")
+    shape = _Shape(t, builder)
     scaled = builder.fmul(t, unscale)
-    margin = builder.fadd(builder.fmul(builder.call(fabs, [scaled]), number(_LIMIT_SLACK)), number(_LIMIT_FLOOR))
-    return builder.fptrunc(builder.fadd(scaled, builder.fmul(side, margin)), single)
+    margin = builder.fadd(builder.fmul(shape.call("fabs", scaled), shape.number(_LIMIT_SLACK)),
+                          shape.number(_LIMIT_FLOOR))
+    return builder.fptrunc(builder.fadd(scaled, builder.fmul(side, margin)), shape.single)
+
+
+class _Shape:
+    """What IR written once for a float64 value or a vector of them needs of that shape: the
+    float64 type (``kind``) and its float32 twin (``single``), its lanes (``None`` for a scalar),
+    constants of it (``number``) and calls of LLVM's float intrinsics on it (``call``)."""
+
+    def __init__(self, value, builder):
+        self.kind = value.type
+        self.lanes = self.kind.count if isinstance(self.kind, ir.VectorType) else None
+        self.single = ir.FloatType() if self.lanes is None else ir.VectorType(ir.FloatType(), self.lanes)
+        self._suffix = "f64" if self.lanes is None else f"v{self.lanes}f64"
+        self._builder = builder
+
+    def number(self, value):
+        return ir.Constant(self.kind, value if self.lanes is None else [value] * self.lanes)
+
+    def call(self, name, *values):
+        function = cgutils.get_or_insert_function(self._builder.module,
+                                                  ir.FunctionType(self.kind, [self.kind] * len(values)),
+                                                  f"llvm.{name}.{self._suffix}")
+        return self._builder.call(function, list(values))
 
 
 @inline_kernel
