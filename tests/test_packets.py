@@ -32,7 +32,7 @@ from rayaccel.structures.bvh.lane_slab import (
     set_up_lane_slab,
     set_up_lane_slabs,
 )
-from rayaccel.structures.bvh.packet_slab import PACKET, PACKET_ROWS, load_lane_limits
+from rayaccel.structures.bvh.packet_slab import PACKET, PACKET_ROWS, bound_span, load_lane_limits
 from rayaccel.structures.bvh.packet_triangle import (
     HIT_ROW,
     NOT_SHARED,
@@ -274,6 +274,45 @@ def test_walks_that_check_their_rays_refuse_unusable_ones(small_dragon, monkeypa
         directions[bad] = 0.0
     with pytest.raises(ValueError, match=f"{words}.*first at index {bad}"):
         getattr(bvh, query)(origins, directions)
+
+
+@numba.njit(cache=False)
+def _bound_span(origins, directions, bounds):
+    return bound_span(origins, directions, 0, SPAN // 2, SPAN // PACKET, bounds)
+
+
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+def test_span_bounds_stand_for_the_rays_check_only_when_every_ray_is_usable(dtype):
+    """The packet walk skips its check of a span's rays when :func:`.packet_slab.bound_span` returns
+    0: then the bounds are the span's, and a NaN or infinite coordinate anywhere in it gives 2
+    instead, a zero direction component (an all-zero direction among them) 1."""
+    rng = np.random.default_rng(5)
+    signs = np.array([1.0, -1.0, 1.0])
+    origins = rng.uniform(-3.0, 3.0, (SPAN, 3)).astype(dtype)
+    directions = (rng.uniform(0.1, 1.0, (SPAN, 3)) * signs).astype(dtype)
+    bounds = np.zeros(17)
+    assert _bound_span(origins, directions, bounds) == 0
+    for axis in range(3):
+        positive = signs[axis] > 0
+        o, d = origins[:, axis].astype(float), directions[:, axis].astype(float)
+        assert bounds[5 * axis:5 * axis + 5].tolist() == [
+            axis if positive else axis + 3, o.max() if positive else o.min(), o.min() if positive else o.max(),
+            1.0 / d.max(), 1.0 / d.min()]
+    for row in (0, 7, SPAN // 2 - 1, SPAN // 2, SPAN - 1):
+        for array in (origins, directions):
+            for axis in range(3):
+                for bad in (np.nan, np.inf, -np.inf):
+                    kept = array[row, axis]
+                    array[row, axis] = bad
+                    assert _bound_span(origins, directions, bounds) == 2, (row, axis, bad)
+                    array[row, axis] = kept
+        kept = directions[row].copy()
+        for zeroed in ([0], [1, 2], [0, 1, 2]):
+            directions[row, zeroed] = 0.0
+            assert _bound_span(origins, directions, bounds) == 1, (row, zeroed)
+            directions[row, 1] = np.nan
+            assert _bound_span(origins, directions, bounds) == 2, (row, zeroed)
+            directions[row] = kept
 
 
 @numba.njit

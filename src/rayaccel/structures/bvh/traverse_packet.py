@@ -320,12 +320,10 @@ def _leaf_by_triangle(geom, prim_order, first, count, lanes, done, kx, ky, kz, s
 
 
 @inline_kernel
-def _root_culls_span(records, origins, directions, t_min, t_max, span_first, span_second, bounds, child_entry):
+def _root_culls_span(records, t_min, t_max, span_first, span_second, bounds, child_entry):
     """Whether the :data:`SPAN` rays of the runs from ``span_first`` and ``span_second`` (half of
-    them each), whose directions have one strict sign along each axis, miss every child box of
-    the root, by their interval bounds."""
-    if bound_span(origins, directions, span_first, span_second, SPAN // PACKET, bounds) != 0:
-        return False
+    them each), whose interval bounds :func:`.packet_slab.bound_span` wrote into ``bounds``, miss
+    every child box of the root."""
     t_low, t_high = ray_limit(t_min, span_first), ray_limit(t_max, span_first)
     if t_min.shape[0] > 1 or t_max.shape[0] > 1:
         for run in (span_first, span_second):
@@ -352,9 +350,10 @@ def _packet_walk(ray_first, ray_end, tid, root_box, records, links, prim_order, 
     (:func:`rayaccel.ray_tiles.tile_ray`): a span is then eight tiles side by side, two runs of
     ``SPAN // 2`` rays a row apart, and a packet one tile, read in place. Each primitive a ray
     meets gets the leaf action of ``mode`` (:mod:`..actions`). The rays of each span are checked
-    first (:func:`rayaccel._validate.unusable_rays`), just before the walk reads them again; a span
-    holding an unusable ray is left unwalked, answered as misses. Returns how many unusable rays
-    there were."""
+    first, by their interval bounds where the walk takes them (:func:`.packet_slab.bound_span`), else
+    one by one (:func:`rayaccel._validate.unusable_rays`), just before the walk reads them again; a
+    span holding an unusable ray is left unwalked, answered as misses. Returns how many unusable
+    rays there were."""
     child_entry = entry[tid]
     state = lanes_state[tid]
     slabs = lanes_slab[tid]
@@ -377,12 +376,18 @@ def _packet_walk(ray_first, ray_end, tid, root_box, records, links, prim_order, 
             span_first = place
             span_second = place + SPAN // 2
             packet_step, lane_offset = PACKET, TILE_COLUMNS
+        checked = False
+        culled = False
+        if not by_lane and span_rays == SPAN:
+            checked = bound_span(origins, directions, span_first, span_second, SPAN // PACKET, bounds) == 0
+            culled = checked and _root_culls_span(records, t_min, t_max, span_first, span_second, bounds,
+                                                  child_entry)
         unusable_here = 0
-        for run in range(TILE_ROWS):
-            run_first, run_end = run_rays(span_first, span_second, span_rays, SPAN // 2, run)
-            unusable_here += unusable_rays(origins, directions, run_first, run_end)
-        if unusable_here or (not by_lane and span_rays == SPAN and _root_culls_span(
-                records, origins, directions, t_min, t_max, span_first, span_second, bounds, child_entry)):
+        if not checked:
+            for run in range(TILE_ROWS):
+                run_first, run_end = run_rays(span_first, span_second, span_rays, SPAN // 2, run)
+                unusable_here += unusable_rays(origins, directions, run_first, run_end)
+        if unusable_here or culled:
             unusable += unusable_here
             for run in range(TILE_ROWS):
                 run_first, run_end = run_rays(span_first, span_second, span_rays, SPAN // 2, run)
