@@ -96,18 +96,23 @@ class Subject:
 
 
 class RayaccelSubject(Subject):
-    """A rayaccel structure; ``reorder=False`` traces the rays in the order given."""
+    """A rayaccel structure; ``reorder=False`` traces the rays in the order given, ``float32=True``
+    gives it the rays rounded to float32, as every peer gets them (rayaccel's walks read float32
+    rays as they are; ``t_min`` stays rayaccel's own)."""
 
     is_peer = False
 
-    def __init__(self, scene, method: str, reorder: bool = True):
+    def __init__(self, scene, method: str, reorder: bool = True, float32: bool = False):
         self.make = lambda: ra.build(scene, method)
         self.accel = self.make()
         self.reorder = reorder
+        self.float32 = float32
         self.label = self.short = f"rayaccel {method}"
 
     def prepare(self, rays: RaySet) -> RaySet:
-        return rays
+        if not self.float32:
+            return rays
+        return RaySet(rays.origins.astype(np.float32), rays.directions.astype(np.float32), rays.t_min, rays.t_max)
 
     def closest(self, rays: RaySet) -> np.ndarray:
         return self.accel.intersect(rays.origins, rays.directions, rays.t_min, rays.t_max, reorder=self.reorder).prim
