@@ -135,17 +135,14 @@ _V = 9 * PACKET
 _JUMP = 8.0
 """How many times the mean of its other steps a step between neighbouring lanes must be for the
 packet's rays to be walked one by one (:func:`_lanes_jump`)."""
-_CHILD_TEST_LANES = 3
+_CHILD_TEST_LANES = 6
 """Rays of a lane packet (of eight) that must be walking a node for it to be tested child by child,
 all the rays at once (:func:`.lane_slab.enter_children_of_lanes`), rather than ray by ray: at the
 top of the tree all eight rays walk most nodes (53 % of the forest's shadow packets' node visits,
 39 % of the full dragon's). Shadow rays, one thread, CPU time, medians of 7-9 alternating in one
-process, closest / any hit, against ray by ray everywhere, when the child test took one child at a
-time: from six rays, forest 1.03-1.05 / 1.05-1.14, full dragon 1.00 / 1.05; from five, forest 1.02 /
-1.06, dragon 1.01 / 1.04; from four, forest 1.00 / 1.06. Since it takes two children at a time,
-against six rays (medians of 9-11): from four, forest 1.03-1.05 / 1.05, dragon 1.00 / 1.00; from
-three, forest 1.04-1.05 / 1.04-1.05, dragon 1.01 / 0.99-1.01; from two, forest 1.07 / 1.06, dragon
-1.00 / 0.95."""
+process, closest / any hit, against ray by ray everywhere: from six rays, forest 1.03-1.05 /
+1.05-1.14, full dragon 1.00 / 1.05; from five, forest 1.02 / 1.06, dragon 1.01 / 1.04; from four,
+forest 1.00 / 1.06."""
 _HIT_T, _HIT_U, _HIT_V = ((HIT_ROW + k) * PACKET for k in range(HIT_ROWS))
 _SCALES = (HIT_ROW + HIT_ROWS) * PACKET
 LANE_ROWS = HIT_ROW + HIT_ROWS + 2
