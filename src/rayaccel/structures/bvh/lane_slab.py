@@ -134,13 +134,7 @@ def enter_children_of_lanes(typingctx, records, node, slabs, scales, lanes, entr
     child holds: it gets ``-inf``. A first version, which took each child's exact nearest distance
     (eight float64 products, reduced) for every walk and chose each lane's near faces, ran at 1.00 /
     1.01 of the lane test (forest-small-chair shadow rays, closest / any hit, nodes walked by all
-    eight rays, one thread, CPU time, medians of 7).
-
-    Children go two at a time through sixteen float32 lanes (the rays' rows twice, each child's faces
-    over eight lanes), a whole AVX-512 register where one child filled half of one: the two bytes of
-    a pair's mask are the pair's bytes of ``by_child``. Against one child at a time, shadow rays, one
-    thread, CPU time, medians of 7-11 alternating in one process, closest / any hit: forest 1.06-1.09
-    / 1.05-1.09, full dragon 1.00-1.05 / 0.93-1.04 (three runs, 1.04 / 1.04 in the first)."""
+    eight rays, one thread, CPU time, medians of 7)."""
     signature = types.Tuple((types.int64, types.uint64))(records, node, slabs, scales, lanes, entry, read_entries,
                                                         near_x, near_y, near_z)
 
@@ -149,29 +143,23 @@ def enter_children_of_lanes(typingctx, records, node, slabs, scales, lanes, entr
         intp = context.get_value_type(types.intp)
         int64 = ir.IntType(64)
         floats = ir.VectorType(ir.FloatType(), PACKET)
-        pairs = ir.VectorType(ir.FloatType(), 2 * PACKET)
         doubles = ir.VectorType(ir.DoubleType(), PACKET)
         row = record_row(context, builder, sig.args[0], array, node_index, sig.args[1])
         box_values = builder.bitcast(row, ir.FloatType().as_pointer())
         slab_rows = vector_rows(context, builder, sig.args[2], slab_array, floats)
-        twice = _lane_order(list(range(PACKET)) * 2)
-        slab = [builder.shuffle_vector(vector, vector, twice)
-                for vector in (builder.load(builder.gep(slab_rows, [ir.Constant(intp, k)]), align=4)
-                               for k in range(LANE_SLAB_ROWS))]
+        slab = [builder.load(builder.gep(slab_rows, [ir.Constant(intp, k)]), align=4) for k in range(LANE_SLAB_ROWS)]
         active = builder.trunc(context.cast(builder, lane_bits, sig.args[4], types.int64), ir.IntType(PACKET))
-        active_twice = builder.zext(active, ir.IntType(2 * PACKET))
-        active_twice = builder.or_(active_twice, builder.shl(active_twice, ir.IntType(2 * PACKET)(PACKET)))
-        in_lanes = builder.bitcast(active_twice, ir.VectorType(ir.IntType(1), 2 * PACKET))
+        in_lanes = builder.bitcast(active, ir.VectorType(ir.IntType(1), PACKET))
         nears = [context.cast(builder, value, sig.args[7 + axis], types.intp) for axis, value in enumerate(args[7:])]
         blocks = nears + [builder.sub(ir.Constant(intp, 2 * axis + 3), near) for axis, near in enumerate(nears)]
-        face_rows = [builder.load(builder.bitcast(builder.gep(box_values, [builder.mul(block, ir.Constant(intp, WIDTH))]),
-                                                  floats.as_pointer()), align=32) for block in blocks]
-        missed = ir.Constant(pairs, [float("inf")] * 2 * PACKET)
+        face_rows = [builder.gep(box_values, [builder.mul(block, ir.Constant(intp, WIDTH))]) for block in blocks]
+        missed = ir.Constant(floats, [float("inf")] * PACKET)
+        children = int64(0)
         by_child = int64(0)
-        pair_entries = []
-        for first in range(0, WIDTH, 2):
-            spread = _lane_order([first] * PACKET + [first + 1] * PACKET)
-            faces = [builder.shuffle_vector(face_row, face_row, spread) for face_row in face_rows]
+        entries = []
+        for child in range(WIDTH):
+            faces = [splat(builder, builder.load(builder.gep(face_row, [ir.Constant(intp, child)])), floats)
+                     for face_row in face_rows]
             enter, exit_ = slab[_ENTER_FROM], slab[_EXIT_BY]
             for axis in range(3):
                 enter, exit_ = tighten_to_slab(builder, faces[axis], faces[axis + 3], slab[_NEAR_ORIGIN + axis],
@@ -180,18 +168,15 @@ def enter_children_of_lanes(typingctx, records, node, slabs, scales, lanes, entr
             used = builder.fadd(faces[0], faces[3])
             entered = builder.and_(builder.and_(builder.fcmp_ordered("<=", enter, exit_), in_lanes),
                                    builder.fcmp_ordered("ord", used, used))
-            rays = builder.zext(builder.bitcast(entered, ir.IntType(2 * PACKET)), int64)
-            by_child = builder.or_(by_child, builder.shl(rays, int64(8 * first)))
-            pair_entries.append(builder.select(entered, enter, missed))
-        bytes_ = builder.bitcast(by_child, ir.VectorType(ir.IntType(8), WIDTH))
-        some = builder.icmp_unsigned("!=", bytes_, ir.Constant(bytes_.type, [0] * WIDTH))
-        children = builder.zext(builder.bitcast(some, ir.IntType(WIDTH)), int64)
+            rays = builder.zext(builder.bitcast(entered, ir.IntType(PACKET)), int64)
+            by_child = builder.or_(by_child, builder.shl(rays, int64(8 * child)))
+            some = builder.zext(builder.icmp_unsigned("!=", rays, int64(0)), int64)
+            children = builder.or_(children, builder.shl(some, int64(child)))
+            entries.append(builder.select(entered, enter, missed))
         entry_rows = vector_rows(context, builder, sig.args[5], entry_array, doubles)
         reading = context.cast(builder, read_flag, sig.args[6], types.boolean)
         with builder.if_else(reading) as (read, unread):
             with read:
-                entries = [builder.shuffle_vector(pair, pair, _lane_order(range(half * PACKET, (half + 1) * PACKET)))
-                           for pair in pair_entries for half in range(2)]
                 scale = builder.load(vector_rows(context, builder, sig.args[3], scale_array, doubles), align=8)
                 nearest = builder.fpext(_smallest_of_each(builder, entries), doubles)
                 factor = builder.select(builder.fcmp_ordered(">=", nearest, ir.Constant(doubles, [0.0] * PACKET)),
@@ -203,12 +188,6 @@ def enter_children_of_lanes(typingctx, records, node, slabs, scales, lanes, entr
         return context.make_tuple(builder, sig.return_type, (children, by_child))
 
     return signature, codegen
-
-
-def _lane_order(lanes):
-    """The IR of a shuffle mask picking ``lanes`` (a ``shuffle_vector`` of a vector with itself)."""
-    lanes = list(lanes)
-    return ir.Constant(ir.VectorType(ir.IntType(32), len(lanes)), lanes)
 
 
 def _smallest_of_each(builder, vectors):
