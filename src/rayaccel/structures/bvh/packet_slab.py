@@ -322,10 +322,7 @@ def bound_span(typingctx, origins, directions, first, second, packets, bounds):
     multiply-add per eight coordinates in place of the check's reading of the rays into lanes.
     Forest camera rays (1024^2), instructions counted on AVX2 code: closest hit 178.6 -> 174.0
     million, any hit 90.5 -> 85.7; one thread, CPU time, medians of 7-9 alternating in one
-    process: forest 1.02-1.05 / 1.08-1.10, full dragon 1.04-1.06 / 1.03-1.06. The sums run in six
-    accumulators, one per vector of a group's rows, so that no chain of dependent additions
-    crosses the groups: against a single one, forest 1.01-1.04 / 1.10-1.11, full dragon 1.01 /
-    1.00."""
+    process: forest 1.02-1.05 / 1.08-1.10, full dragon 1.04-1.06 / 1.03-1.06."""
     if not rays_readable(origins, directions):
         return None
     signature = types.int64(origins, directions, first, second, packets, bounds)
@@ -344,11 +341,8 @@ def bound_span(typingctx, origins, directions, first, second, packets, bounds):
         highest = ir.Constant(doubles, [float("inf")] * PACKET)
         lowest = ir.Constant(doubles, [float("-inf")] * PACKET)
         zero = ir.Constant(doubles, [0.0] * PACKET)
-        finite_sums = {}
-        for array in range(2):
-            for part in range(3):
-                finite_sums[array, part] = cgutils.alloca_once(builder, doubles)
-                builder.store(zero, finite_sums[array, part])
+        finite_sum = cgutils.alloca_once(builder, doubles)
+        builder.store(zero, finite_sum)
         fma = cgutils.get_or_insert_function(builder.module, ir.FunctionType(doubles, [doubles] * 3),
                                              f"llvm.fma.v{PACKET}f64")
         running = {}
@@ -369,7 +363,6 @@ def bound_span(typingctx, origins, directions, first, second, packets, bounds):
                 for part in range(3):
                     values = load_eight(builder, sig.args[array],
                                         builder.gep(block, [ir.Constant(intp, PACKET * part)]))
-                    finite_sum = finite_sums[array, part]
                     builder.store(builder.call(fma, [values, zero, builder.load(finite_sum)]), finite_sum)
                     for compare in ("<", ">"):
                         slot = running[array, part, compare]
@@ -397,10 +390,7 @@ def bound_span(typingctx, origins, directions, first, second, packets, bounds):
             _store_axis_bounds(builder, bounds_data, axis, positive, o_low, o_high, builder.fdiv(one, d_high),
                                builder.fdiv(one, d_low))
         int64 = ir.IntType(64)
-        finite_total = zero
-        for finite_sum in finite_sums.values():
-            finite_total = builder.fadd(finite_total, builder.load(finite_sum))
-        nonfinite_lanes = builder.fcmp_unordered("!=", finite_total, zero)
+        nonfinite_lanes = builder.fcmp_unordered("!=", builder.load(finite_sum), zero)
         nonfinite = builder.icmp_unsigned("!=", builder.bitcast(nonfinite_lanes, ir.IntType(PACKET)),
                                           ir.IntType(PACKET)(0))
         return builder.select(nonfinite, int64(2), builder.zext(unsigned, int64))
