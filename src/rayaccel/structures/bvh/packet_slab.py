@@ -321,8 +321,8 @@ def bound_span(typingctx, origins, directions, first, second, packets, bounds):
     direction), which spares the packet walk a check of its own of those rays: one fused
     multiply-add per eight coordinates in place of the check's reading of the rays into lanes.
     Forest camera rays (1024^2), instructions counted on AVX2 code: closest hit 178.6 -> 174.0
-    million, any hit 90.5 -> 85.7; one thread, CPU time, medians of 7-9 alternating in one
-    process: forest 1.02-1.05 / 1.08-1.10, full dragon 1.04-1.06 / 1.03-1.06."""
+    million, any hit 90.5 -> 85.7; one thread, CPU time, processes alternating (medians of 6-8
+    processes of 5 calls each), closest / any hit: forest 1.02 / 1.06, full dragon 1.02 / 1.04."""
     if not rays_readable(origins, directions):
         return None
     signature = types.int64(origins, directions, first, second, packets, bounds)
