@@ -32,7 +32,7 @@ from rayaccel.structures.bvh.lane_slab import (
     set_up_lane_slab,
     set_up_lane_slabs,
 )
-from rayaccel.structures.bvh.packet_slab import PACKET, PACKET_ROWS, bound_span, load_lane_limits
+from rayaccel.structures.bvh.packet_slab import BOUND_VALUES, PACKET, PACKET_ROWS, bound_span, load_lane_limits
 from rayaccel.structures.bvh.packet_triangle import (
     HIT_ROW,
     NOT_SHARED,
@@ -290,7 +290,7 @@ def test_span_bounds_stand_for_the_rays_check_only_when_every_ray_is_usable(dtyp
     signs = np.array([1.0, -1.0, 1.0])
     origins = rng.uniform(-3.0, 3.0, (SPAN, 3)).astype(dtype)
     directions = (rng.uniform(0.1, 1.0, (SPAN, 3)) * signs).astype(dtype)
-    bounds = np.zeros(17)
+    bounds = np.zeros(BOUND_VALUES)
     assert _bound_span(origins, directions, bounds) == 0
     for axis in range(3):
         positive = signs[axis] > 0

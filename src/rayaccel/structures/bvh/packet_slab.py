@@ -340,9 +340,9 @@ def bound_span(typingctx, origins, directions, first, second, packets, bounds):
                 for array_type, array in ((sig.args[0], origin_array), (sig.args[1], direction_array))]
         highest = ir.Constant(doubles, [float("inf")] * PACKET)
         lowest = ir.Constant(doubles, [float("-inf")] * PACKET)
-        zero = ir.Constant(doubles, [0.0] * PACKET)
+        zeros = ir.Constant(doubles, [0.0] * PACKET)
         finite_sum = cgutils.alloca_once(builder, doubles)
-        builder.store(zero, finite_sum)
+        builder.store(zeros, finite_sum)
         fma = cgutils.get_or_insert_function(builder.module, ir.FunctionType(doubles, [doubles] * 3),
                                              f"llvm.fma.v{PACKET}f64")
         running = {}
@@ -363,7 +363,7 @@ def bound_span(typingctx, origins, directions, first, second, packets, bounds):
                 for part in range(3):
                     values = load_eight(builder, sig.args[array],
                                         builder.gep(block, [ir.Constant(intp, PACKET * part)]))
-                    builder.store(builder.call(fma, [values, zero, builder.load(finite_sum)]), finite_sum)
+                    builder.store(builder.call(fma, [values, zeros, builder.load(finite_sum)]), finite_sum)
                     for compare in ("<", ">"):
                         slot = running[array, part, compare]
                         kept = builder.load(slot)
@@ -379,18 +379,19 @@ def bound_span(typingctx, origins, directions, first, second, packets, bounds):
             return reduce_lanes(builder, combined, compare)
 
         bounds_data = context.make_array(sig.args[5])(context, builder, bounds_array).data
-        one, nought = ir.Constant(double, 1.0), ir.Constant(double, 0.0)
+        zero = ir.Constant(double, 0.0)
+        one = ir.Constant(double, 1.0)
         unsigned = ir.IntType(1)(0)
         for axis in range(3):
             o_low, o_high = extreme(0, axis, "<"), extreme(0, axis, ">")
             d_low, d_high = extreme(1, axis, "<"), extreme(1, axis, ">")
-            positive = builder.fcmp_ordered(">", d_low, nought)
-            signed = builder.or_(positive, builder.fcmp_ordered("<", d_high, nought))
+            positive = builder.fcmp_ordered(">", d_low, zero)
+            signed = builder.or_(positive, builder.fcmp_ordered("<", d_high, zero))
             unsigned = builder.or_(unsigned, builder.not_(signed))
             _store_axis_bounds(builder, bounds_data, axis, positive, o_low, o_high, builder.fdiv(one, d_high),
                                builder.fdiv(one, d_low))
         int64 = ir.IntType(64)
-        nonfinite_lanes = builder.fcmp_unordered("!=", builder.load(finite_sum), zero)
+        nonfinite_lanes = builder.fcmp_unordered("!=", builder.load(finite_sum), zeros)
         nonfinite = builder.icmp_unsigned("!=", builder.bitcast(nonfinite_lanes, ir.IntType(PACKET)),
                                           ir.IntType(PACKET)(0))
         return builder.select(nonfinite, int64(2), builder.zext(unsigned, int64))
