@@ -24,13 +24,12 @@ from __future__ import annotations
 
 from llvmlite import ir
 from numba import types
-from numba.core import cgutils
 from numba.extending import intrinsic
 
 from ..._ray_lanes import rays_by_axis, rays_readable
 from ...geometry.triangle import DEGENERATE
 from .packet_slab import PACKET, PACKET_ROWS
-from .wide_slab import splat
+from .wide_slab import float_intrinsic, splat
 
 __all__ = ["SHEAR_ROW", "SHEAR_ROWS", "HIT_ROW", "HIT_ROWS", "NOT_SHARED", "set_up_shear", "hits_by_lane"]
 
@@ -45,12 +44,6 @@ HIT_ROWS = 3
 _T_MIN_ROW, _BEST_ROW = PACKET_ROWS - 2, PACKET_ROWS - 1
 NOT_SHARED = -1
 """What :func:`set_up_shear` returns for rays whose triangle-test axes differ."""
-
-
-def _fabs(builder, vector):
-    fabs = cgutils.get_or_insert_function(builder.module, ir.FunctionType(vector.type, [vector.type]),
-                                          f"llvm.fabs.v{PACKET}f64")
-    return builder.call(fabs, [vector])
 
 
 def _pick(builder, axis, vectors):
@@ -88,7 +81,7 @@ def set_up_shear(typingctx, origins, directions, first, second, state):
         second_row = context.cast(builder, second_row, sig.args[3], types.intp)
         origin = rays_by_axis(context, builder, sig.args[0], origin_array, row, second_row)
         direction = rays_by_axis(context, builder, sig.args[1], direction_array, row, second_row)
-        ax, ay, az = (_fabs(builder, d) for d in direction)
+        ax, ay, az = (float_intrinsic(builder, "fabs", d) for d in direction)
         x_major = builder.and_(builder.fcmp_ordered(">=", ax, ay), builder.fcmp_ordered(">=", ax, az))
         y_major = builder.and_(builder.not_(x_major), builder.fcmp_ordered(">=", ay, az))
 
@@ -172,11 +165,11 @@ def hits_by_lane(typingctx, state, lanes, ax, ay, az, bx, by, bz, cx, cy, cz):
         entry = builder.block
         with builder.if_then(builder.icmp_unsigned("!=", inside_lanes, int64(0)), likely=False):
             det = builder.fadd(builder.fadd(e0, e1), e2)
-            size = _fabs(builder, products[0])
+            size = float_intrinsic(builder, "fabs", products[0])
             for product in products[1:]:
-                size = builder.fadd(size, _fabs(builder, product))
+                size = builder.fadd(size, float_intrinsic(builder, "fabs", product))
             degenerate_limit = builder.fmul(ir.Constant(doubles, [DEGENERATE] * PACKET), size)
-            proper = builder.fcmp_unordered(">", _fabs(builder, det), degenerate_limit)
+            proper = builder.fcmp_unordered(">", float_intrinsic(builder, "fabs", det), degenerate_limit)
             depth = builder.fadd(builder.fadd(builder.fmul(e0, az_), builder.fmul(e1, bz_)), builder.fmul(e2, cz_))
             t = builder.fdiv(builder.fmul(sz, depth), det)
             in_range = builder.and_(builder.fcmp_ordered(">=", t, builder.load(row(_T_MIN_ROW), align=8)),

@@ -376,12 +376,9 @@ def _packet_walk(ray_first, ray_end, tid, root_box, records, links, prim_order, 
             span_first = place
             span_second = place + SPAN // 2
             packet_step, lane_offset = PACKET, TILE_COLUMNS
-        checked = False
-        culled = False
-        if not by_lane and span_rays == SPAN:
-            checked = bound_span(origins, directions, span_first, span_second, SPAN // PACKET, bounds) == 0
-            culled = checked and _root_culls_span(records, t_min, t_max, span_first, span_second, bounds,
-                                                  child_entry)
+        checked = not by_lane and span_rays == SPAN and bound_span(origins, directions, span_first, span_second,
+                                                                   SPAN // PACKET, bounds) == 0
+        culled = checked and _root_culls_span(records, t_min, t_max, span_first, span_second, bounds, child_entry)
         unusable_here = 0
         if not checked:
             for run in range(TILE_ROWS):

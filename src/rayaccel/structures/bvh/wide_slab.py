@@ -71,7 +71,7 @@ from .wide import WIDTH, is_record_array, record_row
 
 __all__ = ["SLAB_FLOATS", "SLAB_SLACK", "child_entry_rows", "enter_children", "slab_ray", "slab_ray_ir", "slab_limits",
            "scaled_limit", "scaled_limit_ir", "box_reach", "highest_bit", "lowest_bit", "bit_count", "splat",
-           "tighten_lanes", "tighten_to_slab", "entered_children"]
+           "tighten_lanes", "tighten_to_slab", "entered_children", "float_intrinsic"]
 
 SLAB_FLOATS = 11
 """Numbers of a ray's :func:`slab_ray`."""
@@ -181,6 +181,12 @@ def scaled_limit_ir(builder, t, unscale, side):
     margin = builder.fadd(builder.fmul(shape.call("fabs", scaled), shape.number(_LIMIT_SLACK)),
                           shape.number(_LIMIT_FLOOR))
     return builder.fptrunc(builder.fadd(scaled, builder.fmul(side, margin)), shape.single)
+
+
+def float_intrinsic(builder, name, *values):
+    """The IR of LLVM's float intrinsic ``name`` (``fabs``, ``fma``, ...) on float64 values or
+    vectors of them."""
+    return _Shape(values[0], builder).call(name, *values)
 
 
 class _Shape:
