@@ -37,7 +37,14 @@ class RaySet:
     t_max: float = np.inf
 
     def __len__(self) -> int:
-        return len(self.origins)
+        return len(self.directions)
+
+    def one_origin(self) -> np.ndarray | None:
+        """The (1, 3) origin every ray starts from when they share one, as a camera's rays do, else
+        None: a subject whose API takes one origin for all rays is given it so, as its users would
+        pass it (rayaccel, Mitsuba 3); Embree's and Open3D's take an origin per ray."""
+        shared = len(self.origins) and np.all(self.origins == self.origins[0])
+        return self.origins[:1] if shared else None
 
     def without_t_min(self) -> tuple[np.ndarray, np.ndarray, float]:
         """``(origins, directions, t_max)`` of the same segments starting at t = 0, for an API
@@ -98,7 +105,8 @@ class Subject:
 class RayaccelSubject(Subject):
     """A rayaccel structure; ``reorder=False`` traces the rays in the order given, ``float32=True``
     gives it the rays rounded to float32, as every peer gets them (rayaccel's walks read float32
-    rays as they are; ``t_min`` stays rayaccel's own)."""
+    rays as they are; ``t_min`` stays rayaccel's own). Rays from one origin get that origin once
+    (:meth:`RaySet.one_origin`)."""
 
     is_peer = False
 
@@ -110,9 +118,9 @@ class RayaccelSubject(Subject):
         self.label = self.short = f"rayaccel {method}"
 
     def prepare(self, rays: RaySet) -> RaySet:
-        if not self.float32:
-            return rays
-        return RaySet(rays.origins.astype(np.float32), rays.directions.astype(np.float32), rays.t_min, rays.t_max)
+        origins = rays.origins if rays.one_origin() is None else rays.one_origin()
+        dtype = np.float32 if self.float32 else np.float64
+        return RaySet(origins.astype(dtype), rays.directions.astype(dtype), rays.t_min, rays.t_max)
 
     def closest(self, rays: RaySet) -> np.ndarray:
         return self.accel.intersect(rays.origins, rays.directions, rays.t_min, rays.t_max, reorder=self.reorder).prim
@@ -248,7 +256,9 @@ class MitsubaPeer(Subject):
         mi, dr = self.mi, self.dr
         origins, directions, t_max = rays.without_t_min()
         columns = [mi.Float(np.ascontiguousarray(a[:, k], np.float32)) for a in (origins, directions) for k in range(3)]
-        ray = mi.Ray3f(mi.Point3f(*columns[:3]), mi.Vector3f(*columns[3:]))
+        one = rays.one_origin() if rays.t_min == 0.0 else None
+        origin = mi.Point3f(*columns[:3]) if one is None else mi.Point3f(*one[0].astype(np.float32).tolist())
+        ray = mi.Ray3f(origin, mi.Vector3f(*columns[3:]))
         if np.isfinite(t_max):
             ray.maxt = dr.full(mi.Float, t_max, len(rays))
         dr.eval(ray)

@@ -10,7 +10,7 @@ from numba.core import cgutils
 from numba.extending import intrinsic, overload
 
 from ._jit import inline_kernel, kernel, on_threads
-from ._ray_lanes import LANES, rays_by_axis, rays_readable
+from ._ray_lanes import LANES, origin_at, rays_by_axis, rays_readable
 
 __all__ = ["as_points", "as_index_triples", "as_per_ray", "as_positive_int", "check_flag", "check_number",
            "first_zero_row", "check_ray_arrays", "unusable_ray", "unusable_rays"]
@@ -100,8 +100,8 @@ def _unusable_rays(origins, directions, first, end):
 def _unusable_one_by_one(origins, directions, first, end):
     found = 0
     for i in range(first, end):
-        found += unusable_ray(origins[i, 0], origins[i, 1], origins[i, 2], directions[i, 0], directions[i, 1],
-                              directions[i, 2])
+        ox, oy, oz = origin_at(origins, i)
+        found += unusable_ray(ox, oy, oz, directions[i, 0], directions[i, 1], directions[i, 2])
     return found
 
 
@@ -124,8 +124,10 @@ def check_ray_arrays(origins: np.ndarray, directions: np.ndarray) -> None:
     own rays make; only when there are some are the kinds of defect told apart. Such a walk
     leaves the rays it refuses unwalked and may take the rays unchecked, calling this only
     when it met one."""
-    if not sum(on_threads(lambda first, end, _: _count_unusable_rays(origins, directions, first, end), len(origins))):
+    if not sum(on_threads(lambda first, end, _: _count_unusable_rays(origins, directions, first, end),
+                          len(directions))):
         return
+    origins = np.atleast_2d(origins)
     bad_origins = int((~np.isfinite(origins).all(axis=1)).sum())
     if bad_origins:
         raise _nonfinite_error("origins", origins, bad_origins)

@@ -52,7 +52,7 @@ from numba import prange
 
 from ._jit import kernel, parallel_kernel, thread_count
 from .counting_sort import chunk_range, counts_to_starts
-from .rays import RayBatch, result_row
+from .rays import RayBatch, ray_at, result_row
 
 __all__ = ["MIN_RAYS", "MIN_PACKET_RAYS", "coherent_batch", "last_level_cache_bytes", "second_level_cache_bytes",
            "sorting_pays", "Neighbours", "sample_neighbours", "packets_pay", "lane_packets_pay",
@@ -161,11 +161,13 @@ def _neighbour_pairs(origins, directions, stride, steps, cosines):
         dot = 0.0
         square_0 = 0.0
         square_1 = 0.0
+        ray = ray_at(origins, directions, i)
+        following = ray_at(origins, directions, i + 1)
         for axis in range(3):
-            step = max(step, abs(origins[i + 1, axis] - origins[i, axis]))
-            dot += directions[i, axis] * directions[i + 1, axis]
-            square_0 += directions[i, axis] ** 2
-            square_1 += directions[i + 1, axis] ** 2
+            step = max(step, abs(following[axis] - ray[axis]))
+            dot += ray[axis + 3] * following[axis + 3]
+            square_0 += ray[axis + 3] ** 2
+            square_1 += following[axis + 3] ** 2
         steps[k] = step
         cosines[k] = dot / np.sqrt(square_0 * square_1)
 
@@ -180,7 +182,7 @@ def sample_neighbours(batch: RayBatch, scene_lo, scene_hi) -> Neighbours:
     from at most :data:`_SAMPLE` pairs of consecutive rays; a batch of fewer than two rays
     counts as coherent. A walk's choices (:func:`packets_pay`, :func:`lane_packets_pay`,
     :func:`interleaving_pays`) share one sample."""
-    n = len(batch.origins)
+    n = batch.size
     scene_size = float(np.max(scene_hi - scene_lo))
     if n < 2:
         return Neighbours(n, 0.0, scene_size, 1.0)
@@ -222,7 +224,7 @@ def interleaving_pays(batch: RayBatch, scene_lo, scene_hi, structure_bytes: int,
     ``1/64`` of the scene's size, for half of them or more) or head apart (by more than
     :data:`_ALIKE_ANGLE` radians), so that they do not share the nodes they wait for. Camera
     rays and shadow rays from their hits to one light keep the walk of one ray at a time."""
-    if structure_bytes <= caches * second_level_cache_bytes() or len(batch.origins) < 2:
+    if structure_bytes <= caches * second_level_cache_bytes() or batch.size < 2:
         return False
     sampled = sampled or sample_neighbours(batch, scene_lo, scene_hi)
     return not (sampled.start_together(_NEARBY) and sampled.head_alike(_ALIKE_ANGLE))
@@ -234,7 +236,7 @@ def coherent_batch(batch: RayBatch, scene_lo: np.ndarray, scene_hi: np.ndarray) 
     consecutive rays of an evenly spaced sample start within ``1/64`` of the scene's size
     of each other (half of them or more), as camera rays and the shadow rays from
     their hits do."""
-    n = len(batch.origins)
+    n = batch.size
     if sample_neighbours(batch, scene_lo, scene_hi).start_together(_NEARBY):
         return batch
     origins = batch.origins[:n - 1:_sample_stride(n)]

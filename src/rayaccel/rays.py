@@ -7,10 +7,11 @@ from typing import NamedTuple
 import numpy as np
 
 from ._jit import inline_kernel, unsigned
+from ._ray_lanes import origin_at
 from ._validate import as_per_ray, as_points, check_ray_arrays
 
 __all__ = ["RayBatch", "RayCounters", "WORK_COLUMNS", "Hits", "AllHits", "Camera", "prepare_rays", "random_lines",
-           "ray_at", "ray_limit", "result_row"]
+           "origin_at", "ray_at", "ray_limit", "result_row"]
 
 
 class RayBatch(NamedTuple):
@@ -26,6 +27,9 @@ class RayBatch(NamedTuple):
     :func:`result_row`, so they take either form; code that slices or indexes a batch's arrays
     takes a full one. Writing the three arrays for a million rays cost about 3 ms of a
     camera-ray query's 44 ms on the forest scene (two threads), with nothing to compute.
+    Likewise ``origins`` of shape (3,) is one origin every ray starts from, as a pinhole
+    camera's rays do (:func:`prepare_rays` with ``shared_origin``): read through
+    :func:`origin_at` and :func:`ray_at`, or :meth:`with_origin_per_ray` for other code.
     """
 
     origins: np.ndarray
@@ -33,6 +37,23 @@ class RayBatch(NamedTuple):
     t_min: np.ndarray
     t_max: np.ndarray
     hit_slot: np.ndarray
+
+    @property
+    def size(self) -> int:
+        """How many rays the batch holds."""
+        return len(self.directions)
+
+    @property
+    def shares_origin(self) -> bool:
+        """Whether ``origins`` is one (3,) origin of every ray (:func:`prepare_rays` with ``shared_origin``)."""
+        return self.origins.ndim == 1
+
+    def with_origin_per_ray(self) -> RayBatch:
+        """The batch with an origin row per ray, for code that takes an (n, 3) ``origins`` only."""
+        if not self.shares_origin:
+            return self
+        origins = np.ascontiguousarray(np.broadcast_to(self.origins, self.directions.shape))
+        return self._replace(origins=origins)
 
 
 class RayCounters(NamedTuple):
@@ -110,8 +131,16 @@ class AllHits(NamedTuple):
         return np.repeat(np.arange(len(self.offsets) - 1), np.diff(self.offsets))
 
 
+def _one_row_if_repeated(origins):
+    """``origins``' first row alone when it is an array whose rows all alias it (stride 0, as
+    ``np.broadcast_to(eye, shape)`` makes), so that one origin is not copied once per ray."""
+    if isinstance(origins, np.ndarray) and origins.ndim == 2 and len(origins) > 1 and origins.strides[0] == 0:
+        return origins[:1]
+    return origins
+
+
 def prepare_rays(origins, directions, t_min=0.0, t_max=np.inf, *, compact: bool = False,
-                 check: bool = True, keep_float32: bool = False) -> RayBatch:
+                 check: bool = True, keep_float32: bool = False, shared_origin: bool = False) -> RayBatch:
     """Validate and convert a ray batch once, at the Python boundary; a compact
     :class:`RayBatch` when ``compact``.
 
@@ -121,36 +150,38 @@ def prepare_rays(origins, directions, t_min=0.0, t_max=np.inf, *, compact: bool 
     the coordinates and directions are left for the walk to test
     (:func:`rayaccel._validate.unusable_ray`), which saves reading them twice. With
     ``keep_float32``, origins and directions that are both float32 stay float32, for walks
-    that read them through :func:`ray_at`.
+    that read them through :func:`ray_at`. With ``shared_origin``, one origin given for many
+    directions (one row, or a broadcast array whose rows alias one) stays one, of shape (3,),
+    for walks that read it through :func:`origin_at`; else it is copied to every ray.
     """
-    origins = as_points("origins", origins, allow_empty=True, check_finite=False, keep_float32=keep_float32)
+    origins = as_points("origins", _one_row_if_repeated(origins), allow_empty=True, check_finite=False,
+                        keep_float32=keep_float32)
     directions = as_points("directions", directions, allow_empty=True, check_finite=False, keep_float32=keep_float32)
     if origins.dtype != directions.dtype:
         origins, directions = np.asarray(origins, dtype=np.float64), np.asarray(directions, dtype=np.float64)
     if origins.shape != directions.shape:
-        if len(origins) == 1:
-            origins = np.ascontiguousarray(np.broadcast_to(origins, directions.shape))
-        else:
+        if len(origins) != 1:
             raise ValueError(
                 f"origins {origins.shape} and directions {directions.shape} must have the same shape"
             )
+        origins = origins[0] if shared_origin else np.ascontiguousarray(np.broadcast_to(origins, directions.shape))
     if check:
         check_ray_arrays(origins, directions)
-    n = len(origins)
+    n = len(directions)
     return RayBatch(origins, directions, as_per_ray("t_min", t_min, n, shared=compact),
                     as_per_ray("t_max", t_max, n, shared=compact), np.arange(0 if compact else n, dtype=np.int64))
 
 
 @inline_kernel
 def ray_at(origins, directions, i):
-    """Ray ``i``'s origin and direction as six float64 numbers, from float64 or float32 arrays: a
-    float32 coordinate widens to float64 exactly, so a walk computes the same bits from float32
-    rays as from their float64 copy. ``i`` indexes unsigned (:data:`rayaccel._jit.unsigned`), as in
+    """Ray ``i``'s origin (:func:`origin_at`) and direction as six float64 numbers, from float64 or
+    float32 arrays: a float32 coordinate widens to float64 exactly, so a walk computes the same bits
+    from float32 rays as from their float64 copy. ``i`` indexes unsigned (:data:`rayaccel._jit.unsigned`), as in
     :func:`ray_limit` and :func:`result_row`: a ray's index is never negative, and Numba's
     wrap-around of negative indices cost each read a few instructions."""
     r = unsigned(i)
-    return (np.float64(origins[r, 0]), np.float64(origins[r, 1]), np.float64(origins[r, 2]),
-            np.float64(directions[r, 0]), np.float64(directions[r, 1]), np.float64(directions[r, 2]))
+    ox, oy, oz = origin_at(origins, r)
+    return ox, oy, oz, np.float64(directions[r, 0]), np.float64(directions[r, 1]), np.float64(directions[r, 2])
 
 
 @inline_kernel
@@ -227,7 +258,9 @@ class Camera:
     def rays(self, width: int, height: int, pixels: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Origins and unit directions through pixel centres, row-major from the top left.
 
-        ``pixels`` selects flat pixel indices; all pixels when None.
+        ``pixels`` selects flat pixel indices; all pixels when None. The origins are the eye
+        broadcast to every ray, a read-only view of three numbers, which the queries take as
+        one origin (:func:`prepare_rays`) rather than a copy per ray.
         """
         if pixels is None:
             pixels = np.arange(width * height)
@@ -238,7 +271,7 @@ class Camera:
         y = (1.0 - (row + 0.5) / height * 2.0) * half_h
         directions = self.forward + x[:, None] * self.right + y[:, None] * self.true_up
         directions /= np.linalg.norm(directions, axis=1, keepdims=True)
-        origins = np.broadcast_to(self.eye, directions.shape).copy()
+        origins = np.broadcast_to(self.eye, directions.shape)
         return origins, directions
 
 

@@ -156,7 +156,7 @@ class Accelerator(PointQueries):
         """:meth:`occluded` on array inputs (scenes of instances override it): the walk writes
         each ray's answer itself (:func:`.actions.hit_flags`)."""
         rays = self._prepare_rays(origins, directions, t_min, t_max)
-        hit = np.empty(len(rays.origins), dtype=np.bool_)
+        hit = np.empty(rays.size, dtype=np.bool_)
         self._walk_prepared(rays, reorder, True, hit_flags(hit), None)
         return hit
 
@@ -279,7 +279,7 @@ class Accelerator(PointQueries):
     def _ordered(self, rays, reorder):
         """The batch to trace: ``rays`` in a coherent order when asked for and worth it
         (:func:`rayaccel.ray_order.sorting_pays`)."""
-        if reorder and self._walk_gains_from_sorting and sorting_pays(len(rays.origins), self.nbytes):
+        if reorder and self._walk_gains_from_sorting and sorting_pays(rays.size, self.nbytes):
             return coherent_batch(rays, *self.scene_box)
         return rays
 
@@ -328,7 +328,7 @@ class Accelerator(PointQueries):
         given. The kernels write every ray's row of ``t``, ``prim``, ``u``, ``v`` and ``geom``
         (:func:`.actions.finish_ray`), so these start empty."""
         rays = self._prepare_rays(origins, directions, t_min, t_max)
-        n = len(rays.origins)
+        n = rays.size
         t, u, v = (np.empty(n) for _ in range(3))
         prim, geom = np.empty(n, dtype=np.int64), np.empty(n, dtype=np.int64)
         work = np.zeros((n, WORK_COLUMNS), dtype=np.int64) if counters else None
@@ -337,15 +337,15 @@ class Accelerator(PointQueries):
 
     def _prepare_rays(self, origins, directions, t_min, t_max) -> RayBatch:
         """The rays of a closest-hit or any-hit query, checked here unless the walk checks them,
-        and float32 rays kept so where the walk takes them."""
+        float32 rays kept so and one origin kept one where the walk takes them."""
         return prepare_rays(origins, directions, t_min, t_max, compact=True, check=not self._walk_checks_rays,
-                            keep_float32=self._walk_takes_float32)
+                            keep_float32=self._walk_takes_float32, shared_origin=self._walk_takes_shared_origin)
 
     def _walk_prepared(self, rays, reorder, any_hit, action, work) -> None:
         """Trace :meth:`_prepare_rays`'s rays with ``action``; when the walk met rays it could not
         use, the check it skipped runs to raise the error. An any-hit query without counters first
         lets the scene's large primitives answer the rays they can (:mod:`.large_primitives`)."""
-        if not len(rays.origins):
+        if not rays.size:
             return
         walked = rays
         if any_hit and work is None and self._large_primitives_first:
@@ -378,6 +378,13 @@ class Accelerator(PointQueries):
         """Whether the closest-hit and any-hit walk reads float32 rays as they are
         (:func:`rayaccel.rays.ray_at`), so that :meth:`intersect` and :meth:`occluded` need not
         copy them into float64: false unless a structure says otherwise."""
+        return False
+
+    @property
+    def _walk_takes_shared_origin(self) -> bool:
+        """Whether the closest-hit and any-hit walk takes a batch whose rays share one origin as
+        that one origin (:attr:`rayaccel.rays.RayBatch.shares_origin`), so that :meth:`intersect`
+        and :meth:`occluded` need not copy it to every ray: false unless a structure says otherwise."""
         return False
 
     @functools.cached_property

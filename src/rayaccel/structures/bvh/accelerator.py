@@ -87,24 +87,30 @@ def trace_wide(records, root_record, prim_order, kind, geometry, depth, batch, a
     ``root_record``: in packets when ``packets`` and the batch is coherent (a camera's rays, shadow
     rays to one light), with several rays in flight per thread when ``interleave`` and the
     structure (``nbytes``) outgrows the caches, else one ray at a time; each walk compiled for the
-    action's mode where there is one. Returns what the walk returns (the unusable rays met)."""
+    action's mode where there is one. A batch sharing one origin
+    (:attr:`rayaccel.rays.RayBatch.shares_origin`) keeps it so in the interval packets only, which
+    read it once per packet (:func:`.packet_slab.bound_span`, :func:`.packet_slab.load_packet`);
+    the other walks get it copied to every ray. Returns what the walk returns (the unusable rays
+    met)."""
     rows = numba.config.NUMBA_NUM_THREADS
-    n_rays = len(batch.origins)
+    n_rays = batch.size
     tree = (records, records.view(np.int32), prim_order, kind, geometry)
-    sampled = None
-    walk = None
-    if work is None and packets and n_rays >= MIN_PACKET_RAYS:
-        sampled = sample_neighbours(batch, *scene_box)
-        if packets_pay(batch, *scene_box, sampled):
-            walk = _PACKET_WALKS.get(action.mode, wide_packet_crossings_kernel)
-        elif lane_packets_pay(batch, *scene_box, sampled):
-            walk = _LANE_PACKET_WALKS.get(action.mode, lane_packet_crossings_kernel)
-    if walk is not None:
+
+    def in_packets(walk):
         return walk_rays(walk, n_rays, root_record, *tree, *batch, any_hit, *wide_stacks(rows, depth),
                          thread_rows((rows, WIDTH)), thread_rows((rows, LANE_ROWS * PACKET)),
                          thread_rows((rows, LANE_SLAB_ROWS * PACKET), np.float32), thread_rows((rows, BOUND_VALUES)),
                          thread_rows((rows, PACKET), np.int64), image_row_length(batch.directions, SPAN // TILE_ROWS),
                          action, align=SPAN)
+
+    sampled = None
+    if work is None and packets and n_rays >= MIN_PACKET_RAYS:
+        sampled = sample_neighbours(batch, *scene_box)
+        if packets_pay(batch, *scene_box, sampled):
+            return in_packets(_PACKET_WALKS.get(action.mode, wide_packet_crossings_kernel))
+    batch = batch.with_origin_per_ray()
+    if sampled is not None and lane_packets_pay(batch, *scene_box, sampled):
+        return in_packets(_LANE_PACKET_WALKS.get(action.mode, lane_packet_crossings_kernel))
     if interleave and interleaving_pays(batch, *scene_box, nbytes, sampled, caches=_INTERLEAVE_CACHES):
         walk = _INTERLEAVED_WALKS.get(action.mode, interleaved_crossings_kernel)
         return walk_rays(walk, n_rays, root_record, *tree, *batch, any_hit, *wide_stacks(rows * SLOTS, depth),
@@ -302,6 +308,13 @@ class BoundingVolumeHierarchy(Accelerator):
         coordinate to float64 as they load it (the same hits, to the bit, as the rays' float64
         copy): a user's float32 rays are not copied, and the walks read half the bytes."""
         return self.wide is not None and self.scene.kind == TRIANGLE
+
+    @property
+    def _walk_takes_shared_origin(self) -> bool:
+        """The eight-wide BVH's packet walk over triangles reads a camera's one origin once
+        (:func:`trace_wide`), rather than a copy of it per ray: half the bytes a float64 camera ray
+        costs, and no copy to make."""
+        return self._walk_takes_float32
 
     def _trace(self, batch, any_hit, action, work):
         rows = numba.config.NUMBA_NUM_THREADS

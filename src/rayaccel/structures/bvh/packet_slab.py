@@ -34,7 +34,7 @@ from numba import types
 from numba.core import cgutils
 from numba.extending import intrinsic
 
-from ..._ray_lanes import LANES, load_eight, rays_by_axis, rays_readable
+from ..._ray_lanes import LANES, load_eight, rays_by_axis, rays_readable, shared_by_lanes
 from .wide import WIDTH, record_row
 from .wide_slab import entered_children, float_intrinsic, splat, tighten_lanes, tighten_to_slab
 
@@ -306,9 +306,9 @@ def reduce_lanes(builder, vector, compare):
 @intrinsic
 def bound_span(typingctx, origins, directions, first, second, packets, bounds):
     """The interval bounds of ``PACKET * packets`` rays of ``origins`` and ``directions`` ((n, 3)
-    C-contiguous float64 or float32), the first half from row ``first`` on and the second from
-    row ``second`` on (the rows that follow, or the next image row's for tiles,
-    :mod:`rayaccel.ray_tiles`), for :func:`enter_children_interval`: returns
+    C-contiguous float64 or float32; ``origins`` may be a (3,) origin they share, read once), the
+    first half from row ``first`` on and the second from row ``second`` on (the rows that follow,
+    or the next image row's for tiles, :mod:`rayaccel.ray_tiles`), for :func:`enter_children_interval`: returns
     0 after writing rows 0-14 of :data:`BOUND_VALUES` into ``bounds``, or 1, leaving ``bounds``
     unfinished, when along some axis the directions are not all of one strict sign. Each
     group of eight rows is read as three vectors of eight coordinates and folded into running
@@ -344,8 +344,15 @@ def bound_span(typingctx, origins, directions, first, second, packets, bounds):
         zeros = ir.Constant(doubles, [0.0] * PACKET)
         finite_sum = cgutils.alloca_once(builder, doubles)
         builder.store(zeros, finite_sum)
+        shared_origin = sig.args[0].ndim == 1
+        read_in_rows = (1,) if shared_origin else (0, 1)
+        if shared_origin:
+            origin = [shared_by_lanes(builder, sig.args[0], builder.gep(data[0], [ir.Constant(intp, axis)]))
+                      for axis in range(3)]
+            for vector in origin:
+                builder.store(float_intrinsic(builder, "fma", vector, zeros, builder.load(finite_sum)), finite_sum)
         running = {}
-        for array in range(2):
+        for array in read_in_rows:
             for part in range(3):
                 for compare, start in (("<", highest), (">", lowest)):
                     slot = cgutils.alloca_once(builder, doubles)
@@ -357,7 +364,7 @@ def bound_span(typingctx, origins, directions, first, second, packets, bounds):
                                        builder.add(second_start, builder.mul(builder.sub(loop.index, half),
                                                                              ir.Constant(intp, PACKET))))
             offset = builder.mul(group_row, ir.Constant(intp, 3))
-            for array in range(2):
+            for array in read_in_rows:
                 block = builder.gep(data[array], [offset])
                 for part in range(3):
                     values = load_eight(builder, sig.args[array],
@@ -382,7 +389,10 @@ def bound_span(typingctx, origins, directions, first, second, packets, bounds):
         one = ir.Constant(double, 1.0)
         unsigned = ir.IntType(1)(0)
         for axis in range(3):
-            o_low, o_high = extreme(0, axis, "<"), extreme(0, axis, ">")
+            if shared_origin:
+                o_low = o_high = builder.extract_element(origin[axis], ir.IntType(32)(0))
+            else:
+                o_low, o_high = extreme(0, axis, "<"), extreme(0, axis, ">")
             d_low, d_high = extreme(1, axis, "<"), extreme(1, axis, ">")
             positive = builder.fcmp_ordered(">", d_low, zero)
             signed = builder.or_(positive, builder.fcmp_ordered("<", d_high, zero))

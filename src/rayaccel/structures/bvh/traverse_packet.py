@@ -363,7 +363,7 @@ def _packet_walk(ray_first, ray_end, tid, root_box, records, links, prim_order, 
     best_prim = lanes_prim[tid]
     nearest_first = not any_hit and mode == NEAREST
     lane_triangles = mode == NEAREST and kind == TRIANGLE
-    tiled_rays, next_tiled, column = first_tile(ray_first, row_length, origins.shape[0])
+    tiled_rays, next_tiled, column = first_tile(ray_first, row_length, directions.shape[0])
     unusable = 0
     for place in range(ray_first, ray_end, SPAN):
         span_rays = min(SPAN, ray_end - place)
@@ -403,10 +403,10 @@ def _packet_walk(ray_first, ray_end, tid, root_box, records, links, prim_order, 
             else:
                 mixed = False
                 for r in range(PACKET):
-                    i = lane_ray(packet_first, min(r, n_lanes - 1), packet_second)
+                    ray = ray_at(origins, directions, lane_ray(packet_first, min(r, n_lanes - 1), packet_second))
                     for axis in range(3):
-                        inverse = 1.0 / np.float64(directions[i, axis])
-                        state[axis * PACKET + r] = origins[i, axis]
+                        inverse = 1.0 / ray[axis + 3]
+                        state[axis * PACKET + r] = ray[axis]
                         state[(axis + 3) * PACKET + r] = inverse
                         mixed |= (inverse >= 0.0) != (state[(axis + 3) * PACKET] >= 0.0)
             if loaded:

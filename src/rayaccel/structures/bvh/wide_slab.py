@@ -67,6 +67,7 @@ from numba.core import cgutils
 from numba.extending import intrinsic
 
 from ..._jit import inline_kernel, thread_rows
+from ..._ray_lanes import splat
 from .wide import WIDTH, is_record_array, record_row
 
 __all__ = ["SLAB_FLOATS", "SLAB_SLACK", "child_entry_rows", "enter_children", "slab_ray", "slab_ray_ir", "slab_limits",
@@ -270,14 +271,6 @@ def enter_children(typingctx, records, node, near_x, near_y, near_z, slab, enter
         return entered_children(context, builder, sig.args[8], entry_array, enter, exit_, used)
 
     return signature, codegen
-
-
-def splat(builder, value, vector_type):
-    """The IR of a vector of ``vector_type`` with ``value`` in every lane."""
-    vector = ir.Constant(vector_type, ir.Undefined)
-    for lane in range(vector_type.count):
-        vector = builder.insert_element(vector, value, ir.IntType(32)(lane))
-    return vector
 
 
 def tighten_lanes(builder, near, far, enter, exit_):
