@@ -118,7 +118,8 @@ class RayaccelSubject(Subject):
         self.label = self.short = f"rayaccel {method}"
 
     def prepare(self, rays: RaySet) -> RaySet:
-        origins = rays.origins if rays.one_origin() is None else rays.one_origin()
+        one = rays.one_origin()
+        origins = rays.origins if one is None else one
         dtype = np.float32 if self.float32 else np.float64
         return RaySet(origins.astype(dtype), rays.directions.astype(dtype), rays.t_min, rays.t_max)
 
