@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 
+import numba
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, settings
@@ -12,6 +13,8 @@ from hypothesis import HealthCheck, settings
 os.environ["RAYACCEL_GRID_COST_RATIO"] = "triangle=2.6,sphere=1.0"
 
 import rayaccel as ra  # noqa: E402
+from rayaccel.structures.bvh.packet_slab import PACKET, bound_span  # noqa: E402
+from rayaccel.structures.bvh.traverse_packet import SPAN  # noqa: E402
 
 # ``pytest --hypothesis-profile=long`` searches the property-based tests far deeper than CI does.
 settings.register_profile("long", max_examples=2000, deadline=None, suppress_health_check=[HealthCheck.too_slow])
@@ -43,6 +46,14 @@ def closed_sphere_mesh():
 @pytest.fixture(scope="session")
 def spheres():
     return ra.random_spheres(3000, seed=7)
+
+
+@numba.njit(cache=False)
+def bound_whole_span(origins, directions, bounds):
+    """:func:`rayaccel.structures.bvh.packet_slab.bound_span` of the first ``SPAN`` rows, as two
+    runs of half a span. Not cached: Numba's cache checks only this file's time stamp, and would keep
+    an old ``bound_span`` compiled in after ``packet_slab`` changed."""
+    return bound_span(origins, directions, 0, SPAN // 2, SPAN // PACKET, bounds)
 
 
 def camera_rays(scene, size):

@@ -9,6 +9,7 @@ from conftest import (
     assert_counts_and_lists_match,
     assert_same_hits,
     axis_parallel_rays,
+    bound_whole_span,
     camera_rays,
     one_eye_vertex_and_edge_rays,
     random_rays,
@@ -32,7 +33,7 @@ from rayaccel.structures.bvh.lane_slab import (
     set_up_lane_slab,
     set_up_lane_slabs,
 )
-from rayaccel.structures.bvh.packet_slab import BOUND_VALUES, PACKET, PACKET_ROWS, bound_span, load_lane_limits
+from rayaccel.structures.bvh.packet_slab import BOUND_VALUES, PACKET, PACKET_ROWS, load_lane_limits
 from rayaccel.structures.bvh.packet_triangle import (
     HIT_ROW,
     NOT_SHARED,
@@ -276,11 +277,6 @@ def test_walks_that_check_their_rays_refuse_unusable_ones(small_dragon, monkeypa
         getattr(bvh, query)(origins, directions)
 
 
-@numba.njit(cache=False)
-def _bound_span(origins, directions, bounds):
-    return bound_span(origins, directions, 0, SPAN // 2, SPAN // PACKET, bounds)
-
-
 @pytest.mark.parametrize("dtype", [np.float64, np.float32])
 def test_span_bounds_stand_for_the_rays_check_only_when_every_ray_is_usable(dtype):
     """The packet walk skips its check of a span's rays when :func:`.packet_slab.bound_span` returns
@@ -291,7 +287,7 @@ def test_span_bounds_stand_for_the_rays_check_only_when_every_ray_is_usable(dtyp
     origins = rng.uniform(-3.0, 3.0, (SPAN, 3)).astype(dtype)
     directions = (rng.uniform(0.1, 1.0, (SPAN, 3)) * signs).astype(dtype)
     bounds = np.zeros(BOUND_VALUES)
-    assert _bound_span(origins, directions, bounds) == 0
+    assert bound_whole_span(origins, directions, bounds) == 0
     for axis in range(3):
         positive = signs[axis] > 0
         o, d = origins[:, axis].astype(float), directions[:, axis].astype(float)
@@ -304,14 +300,14 @@ def test_span_bounds_stand_for_the_rays_check_only_when_every_ray_is_usable(dtyp
                 for bad in (np.nan, np.inf, -np.inf):
                     kept = array[row, axis]
                     array[row, axis] = bad
-                    assert _bound_span(origins, directions, bounds) == 2, (row, axis, bad)
+                    assert bound_whole_span(origins, directions, bounds) == 2, (row, axis, bad)
                     array[row, axis] = kept
         kept = directions[row].copy()
         for zeroed in ([0], [1, 2], [0, 1, 2]):
             directions[row, zeroed] = 0.0
-            assert _bound_span(origins, directions, bounds) == 1, (row, zeroed)
+            assert bound_whole_span(origins, directions, bounds) == 1, (row, zeroed)
             directions[row, 1] = np.nan
-            assert _bound_span(origins, directions, bounds) == 2, (row, zeroed)
+            assert bound_whole_span(origins, directions, bounds) == 2, (row, zeroed)
             directions[row] = kept
 
 

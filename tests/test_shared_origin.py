@@ -2,16 +2,21 @@
 
 from __future__ import annotations
 
-import numba
 import numpy as np
 import pytest
-from conftest import assert_counts_and_lists_match, assert_same_hits, camera_rays, one_eye_vertex_and_edge_rays
+from conftest import (
+    assert_counts_and_lists_match,
+    assert_same_hits,
+    bound_whole_span,
+    camera_rays,
+    one_eye_vertex_and_edge_rays,
+)
 
 import rayaccel as ra
 from rayaccel.ray_order import MIN_PACKET_RAYS
 from rayaccel.rays import prepare_rays
 from rayaccel.structures.bvh import accelerator
-from rayaccel.structures.bvh.packet_slab import BOUND_VALUES, PACKET, bound_span
+from rayaccel.structures.bvh.packet_slab import BOUND_VALUES, PACKET
 from rayaccel.structures.bvh.traverse_packet import SPAN
 
 ONE_ORIGIN_FORMS = {
@@ -145,22 +150,17 @@ def test_a_zero_direction_among_rays_from_one_origin_is_refused(small_dragon, qu
         getattr(ra.build(small_dragon, "bvh-binned"), query)(origins[0], directions)
 
 
-@numba.njit(cache=False)
-def _bound_span(origins, directions, bounds):
-    return bound_span(origins, directions, 0, SPAN // 2, SPAN // PACKET, bounds)
-
-
 @pytest.mark.parametrize("dtype", [np.float64, np.float32])
 def test_span_bounds_of_one_origin_are_those_of_its_copies(dtype):
     rng = np.random.default_rng(8)
     eye = rng.uniform(-3.0, 3.0, 3).astype(dtype)
     directions = (rng.uniform(0.1, 1.0, (SPAN, 3)) * [1.0, -1.0, -1.0]).astype(dtype)
     shared, copied = np.zeros(BOUND_VALUES), np.zeros(BOUND_VALUES)
-    assert _bound_span(eye, directions, shared) == 0
-    assert _bound_span(np.ascontiguousarray(np.broadcast_to(eye, directions.shape)), directions, copied) == 0
+    assert bound_whole_span(eye, directions, shared) == 0
+    assert bound_whole_span(np.ascontiguousarray(np.broadcast_to(eye, directions.shape)), directions, copied) == 0
     np.testing.assert_array_equal(shared[:15], copied[:15])
     for axis in range(3):
         for bad in (np.nan, np.inf):
             unusable = eye.copy()
             unusable[axis] = bad
-            assert _bound_span(unusable, directions, shared) == 2
+            assert bound_whole_span(unusable, directions, shared) == 2

@@ -50,10 +50,7 @@ class RayBatch(NamedTuple):
 
     def with_origin_per_ray(self) -> RayBatch:
         """The batch with an origin row per ray, for code that takes an (n, 3) ``origins`` only."""
-        if not self.shares_origin:
-            return self
-        origins = np.ascontiguousarray(np.broadcast_to(self.origins, self.directions.shape))
-        return self._replace(origins=origins)
+        return self._replace(origins=_per_ray(self.origins, self.directions)) if self.shares_origin else self
 
 
 class RayCounters(NamedTuple):
@@ -131,6 +128,11 @@ class AllHits(NamedTuple):
         return np.repeat(np.arange(len(self.offsets) - 1), np.diff(self.offsets))
 
 
+def _per_ray(origins, directions):
+    """One origin (a row or a (3,) array) copied to a C-contiguous row per ray of ``directions``."""
+    return np.ascontiguousarray(np.broadcast_to(origins, directions.shape))
+
+
 def _one_row_if_repeated(origins):
     """``origins``' first row alone when it is an array whose rows all alias it (stride 0, as
     ``np.broadcast_to(eye, shape)`` makes), so that one origin is not copied once per ray."""
@@ -164,7 +166,7 @@ def prepare_rays(origins, directions, t_min=0.0, t_max=np.inf, *, compact: bool 
             raise ValueError(
                 f"origins {origins.shape} and directions {directions.shape} must have the same shape"
             )
-        origins = origins[0] if shared_origin else np.ascontiguousarray(np.broadcast_to(origins, directions.shape))
+        origins = origins[0] if shared_origin else _per_ray(origins, directions)
     if check:
         check_ray_arrays(origins, directions)
     n = len(directions)

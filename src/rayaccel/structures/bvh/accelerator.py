@@ -96,7 +96,7 @@ def trace_wide(records, root_record, prim_order, kind, geometry, depth, batch, a
     n_rays = batch.size
     tree = (records, records.view(np.int32), prim_order, kind, geometry)
 
-    def in_packets(walk):
+    def in_packets(walk, batch):
         return walk_rays(walk, n_rays, root_record, *tree, *batch, any_hit, *wide_stacks(rows, depth),
                          thread_rows((rows, WIDTH)), thread_rows((rows, LANE_ROWS * PACKET)),
                          thread_rows((rows, LANE_SLAB_ROWS * PACKET), np.float32), thread_rows((rows, BOUND_VALUES)),
@@ -107,10 +107,10 @@ def trace_wide(records, root_record, prim_order, kind, geometry, depth, batch, a
     if work is None and packets and n_rays >= MIN_PACKET_RAYS:
         sampled = sample_neighbours(batch, *scene_box)
         if packets_pay(batch, *scene_box, sampled):
-            return in_packets(_PACKET_WALKS.get(action.mode, wide_packet_crossings_kernel))
+            return in_packets(_PACKET_WALKS.get(action.mode, wide_packet_crossings_kernel), batch)
     batch = batch.with_origin_per_ray()
     if sampled is not None and lane_packets_pay(batch, *scene_box, sampled):
-        return in_packets(_LANE_PACKET_WALKS.get(action.mode, lane_packet_crossings_kernel))
+        return in_packets(_LANE_PACKET_WALKS.get(action.mode, lane_packet_crossings_kernel), batch)
     if interleave and interleaving_pays(batch, *scene_box, nbytes, sampled, caches=_INTERLEAVE_CACHES):
         walk = _INTERLEAVED_WALKS.get(action.mode, interleaved_crossings_kernel)
         return walk_rays(walk, n_rays, root_record, *tree, *batch, any_hit, *wide_stacks(rows * SLOTS, depth),

@@ -22,10 +22,10 @@ from numba import types
 from numba.extending import intrinsic
 
 from ..._jit import inline_kernel
-from ..._ray_lanes import rays_by_axis, rays_readable
+from ..._ray_lanes import rays_by_axis, rays_readable, splat
 from .packet_slab import PACKET, reduce_lanes, vector_rows
 from .wide import WIDTH, record_row
-from .wide_slab import scaled_limit, scaled_limit_ir, slab_ray, slab_ray_ir, splat, tighten_to_slab
+from .wide_slab import scaled_limit, scaled_limit_ir, slab_ray, slab_ray_ir, tighten_to_slab
 
 __all__ = ["LANE_SLAB_ROWS", "enter_children_by_lane", "enter_children_of_lanes", "set_up_lane_slab",
            "set_up_lane_slabs", "bound_lane_slab", "bound_lane_slabs", "narrow_lane_slab"]

@@ -34,9 +34,9 @@ from numba import types
 from numba.core import cgutils
 from numba.extending import intrinsic
 
-from ..._ray_lanes import LANES, load_eight, rays_by_axis, rays_readable, shared_by_lanes
+from ..._ray_lanes import LANES, load_eight, rays_by_axis, rays_readable, shared_by_lanes, splat
 from .wide import WIDTH, record_row
-from .wide_slab import entered_children, float_intrinsic, splat, tighten_lanes, tighten_to_slab
+from .wide_slab import entered_children, float_intrinsic, tighten_lanes, tighten_to_slab
 
 __all__ = ["PACKET", "PACKET_ROWS", "BOUND_T_MIN", "BOUND_BEST", "BOUND_VALUES", "enter_children_interval",
            "enter_child_lanes", "load_lane_limits", "load_packet", "load_lanes", "bound_span", "reduce_lanes",

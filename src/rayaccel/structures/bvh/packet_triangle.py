@@ -26,10 +26,10 @@ from llvmlite import ir
 from numba import types
 from numba.extending import intrinsic
 
-from ..._ray_lanes import rays_by_axis, rays_readable
+from ..._ray_lanes import rays_by_axis, rays_readable, splat
 from ...geometry.triangle import DEGENERATE
 from .packet_slab import PACKET, PACKET_ROWS
-from .wide_slab import float_intrinsic, splat
+from .wide_slab import float_intrinsic
 
 __all__ = ["SHEAR_ROW", "SHEAR_ROWS", "HIT_ROW", "HIT_ROWS", "NOT_SHARED", "set_up_shear", "hits_by_lane"]
 

@@ -25,8 +25,8 @@ from llvmlite import ir
 from numba import types
 from numba.extending import intrinsic
 
+from ..._ray_lanes import splat
 from ...geometry.gather import LANES, is_lanes_type, lane_pointer
-from .wide_slab import splat
 
 __all__ = ["edges_admit"]
 

@@ -71,7 +71,7 @@ from ..._ray_lanes import splat
 from .wide import WIDTH, is_record_array, record_row
 
 __all__ = ["SLAB_FLOATS", "SLAB_SLACK", "child_entry_rows", "enter_children", "slab_ray", "slab_ray_ir", "slab_limits",
-           "scaled_limit", "scaled_limit_ir", "box_reach", "highest_bit", "lowest_bit", "bit_count", "splat",
+           "scaled_limit", "scaled_limit_ir", "box_reach", "highest_bit", "lowest_bit", "bit_count",
            "tighten_lanes", "tighten_to_slab", "entered_children", "float_intrinsic"]
 
 SLAB_FLOATS = 11

@@ -35,14 +35,14 @@ from numba.core import cgutils
 from numba.extending import intrinsic
 
 from ..._jit import chunk_kernel, inline_kernel, unsigned
-from ..._ray_lanes import LANES
+from ..._ray_lanes import LANES, splat
 from ...geometry.box import clip_to_box
 from ...geometry.primitive import ray_setup
 from ...ray_tiles import TILE_COLUMNS, TILE_ROWS, first_tile, lane_ray, next_tile, run_rays
 from ...rays import ray_limit, result_row
 from ..actions import NEAREST, finish_ray_in_mode
 from ..base import EXIT_MARGIN, settled_before
-from ..bvh.wide_slab import highest_bit, splat
+from ..bvh.wide_slab import highest_bit
 from .layout import LEAF, PLANE_FLOOR, PLANE_STEP, leaf_first, node_child, node_plane, node_word
 from .traverse import empty_children_of, is_empty_child, meets_apart, visit_references, walk_singly
 
