@@ -33,6 +33,7 @@ from __future__ import annotations
 import contextlib
 import copy
 import itertools
+import math
 import os
 from concurrent.futures import ThreadPoolExecutor, wait
 
@@ -495,9 +496,9 @@ def thread_rows(shape, dtype=np.float64) -> np.ndarray:
     than false sharing on one line would explain); it removes the hazard, not a measured cost."""
     dtype = np.dtype(dtype)
     rows, width, *inner = shape
-    item_bytes = dtype.itemsize * int(np.prod(inner, dtype=np.int64))
-    while (width * item_bytes) % _ROW_ALIGNMENT:
-        width += 1
+    item_bytes = dtype.itemsize * math.prod(inner)
+    step = _ROW_ALIGNMENT // math.gcd(item_bytes, _ROW_ALIGNMENT)
+    width = -(-width // step) * step
     size = rows * width * item_bytes
     raw = np.empty(size + _ROW_ALIGNMENT, dtype=np.uint8)
     offset = (-raw.ctypes.data) % _ROW_ALIGNMENT
