@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from conftest import GROUND, camera_rays, ground_and_clutter
+from conftest import GROUND, assert_same_hits, camera_rays, ground_and_clutter
 
 import rayaccel as ra
 from rayaccel.geometry.gather import is_lanes
@@ -264,3 +264,26 @@ def test_a_large_sphere_is_kept_apart_too():
     np.testing.assert_allclose(got.t, want.t, rtol=1e-12)
     np.testing.assert_array_equal(accel.count(origins, directions), reference.count(origins, directions))
     np.testing.assert_array_equal(accel.closest_point(origins).prim, reference.closest_point(origins).prim)
+
+
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+def test_rays_from_one_origin_settle_and_walk_with_that_origin(dtype):
+    """A camera's rays given their eye once, through the kd-tree whose eight-wide walk takes one
+    origin: the large primitives settle most of them and the rest walk with the eye still given
+    once, every answer that of brute force on the eye copied to every ray."""
+    scene = ground_and_clutter()
+    reference, accel = ra.build(scene, "none"), build(scene, "kdtree")
+    camera = ra.Camera((4.0, 6.0, -3.0), (5.0, 0.0, 5.0), fov=50.0)
+    origins, directions = (array.astype(dtype) for array in camera.rays(72, 64))
+    eye = origins[0].copy()
+    prepared = accel._prepare_rays(eye, directions, 0.0, np.inf)
+    rest = unsettled_rays(accel._large_primitives, scene.kind, prepared, hit_flags(np.empty(len(directions), bool)))
+    assert prepared.shares_origin and rest.shares_origin and 0 < rest.size < prepared.size
+    t_max = np.random.default_rng(5).uniform(2.0, 12.0, len(directions))
+    for limits in ((0.0, np.inf), (0.0, t_max)):
+        expected = reference.occluded(origins, directions, *limits)
+        assert 0.25 < expected.mean() < 1.0
+        np.testing.assert_array_equal(accel.occluded(eye, directions, *limits), expected)
+        hits = accel.intersect(eye, directions, *limits, any_hit=True)
+        np.testing.assert_array_equal(hits.prim >= 0, expected)
+    assert_same_hits(reference.intersect(origins, directions), accel.intersect(eye, directions))

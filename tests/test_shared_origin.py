@@ -86,6 +86,21 @@ def test_camera_rays_from_one_origin_match_brute_force_and_their_copies(small_dr
                                       brute.occluded(origins, directions, *limits))
 
 
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+def test_kdtree_cells_take_one_origin(small_dragon, walked, dtype):
+    """The kd-tree's cells, walked eight-wide, take a camera's one origin as the BVH does: the
+    same bits as its copy per ray, and brute force's hits."""
+    origins, directions = (array.astype(dtype) for array in camera_rays(small_dragon, 64))
+    brute, kdtree = ra.build(small_dragon, "none"), ra.build(small_dragon, "kdtree")
+    hits = kdtree.intersect(origins[0], directions)
+    assert walked == [("wide_packet_kernel", (3,))]
+    assert_same_hits(brute.intersect(origins, directions), hits)
+    copied = kdtree.intersect(np.ascontiguousarray(origins), directions)
+    for field in ("t", "prim", "u", "v"):
+        np.testing.assert_array_equal(getattr(hits, field), getattr(copied, field))
+    np.testing.assert_array_equal(kdtree.occluded(origins[0], directions), brute.occluded(origins, directions))
+
+
 @pytest.mark.parametrize("n", [1, PACKET - 1, MIN_PACKET_RAYS - 1])
 def test_small_batches_from_one_origin_walk_with_a_copy(small_dragon, walked, n):
     origins, directions = camera_rays(small_dragon, 40)

@@ -121,11 +121,11 @@ def unsettled_rays(large: LargePrimitives, kind: int, rays: RayBatch, action) ->
     that meet one (their rows of ``action`` written): ``rays`` itself when a sample of
     :data:`SAMPLED_RAYS` says too few would, a batch of the others (``hit_slot`` naming their rows)
     otherwise, ``None`` when none is left."""
-    n = len(rays.origins)
+    n = rays.size
     if not len(large.prims) or n < SAMPLED_RAYS:
         return rays
     sample = _rays_in_rows(rays, slice(None, None, n // SAMPLED_RAYS), rays.hit_slot[:0])
-    sampled = len(sample.origins)
+    sampled = sample.size
     settled = np.empty(sampled, dtype=np.bool_)
     _settle_kernel(0, sampled, 0, kind, large.geom, large.prims, *sample, hit_flags(np.empty(sampled, dtype=np.bool_)),
                    settled)
@@ -142,7 +142,8 @@ def unsettled_rays(large: LargePrimitives, kind: int, rays: RayBatch, action) ->
 
 def _rays_in_rows(rays: RayBatch, index, hit_slot) -> RayBatch:
     """The rays ``index`` (a slice or an index array) of ``rays``, in contiguous copies, writing into the
-    rows ``hit_slot``; a limit that ``rays`` shares among all rays stays shared."""
-    n = len(rays.origins)
-    return RayBatch(*(np.ascontiguousarray(array[index]) if len(array) == n else array for array in rays[:4]),
-                    hit_slot)
+    rows ``hit_slot``; an origin or a limit that ``rays`` shares among all rays stays shared."""
+    origins = rays.origins if rays.shares_origin else np.ascontiguousarray(rays.origins[index])
+    return RayBatch(origins, np.ascontiguousarray(rays.directions[index]),
+                    *(np.ascontiguousarray(limit[index]) if len(limit) == rays.size else limit
+                      for limit in (rays.t_min, rays.t_max)), hit_slot)

@@ -404,6 +404,11 @@ class KdTree(Accelerator):
         """The eight-wide walks over triangles read float32 rays as they are (see the BVH's)."""
         return self.cells is not None and self.scene.kind == TRIANGLE
 
+    @property
+    def _walk_takes_shared_origin(self) -> bool:
+        """The eight-wide walks over triangles take a camera's one origin as one (see the BVH's)."""
+        return self._walk_takes_float32
+
     def _trace(self, batch, any_hit, action, work):
         if self.cells is not None and action.mode == NEAREST:
             cells = self.cells
