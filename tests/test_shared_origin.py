@@ -59,6 +59,17 @@ def test_one_origin_stays_one_only_where_asked(form):
 
 
 @pytest.mark.parametrize("dtype", [np.float64, np.float32])
+@pytest.mark.parametrize("n", [0, 1, 2, 3, 5, 1000, 4099])
+def test_one_origin_copied_to_every_ray(dtype, n):
+    directions = np.random.default_rng(n).normal(size=(n, 3)).astype(dtype)
+    eye = np.array([0.25, -1.5, 3.0], dtype=dtype)
+    for one in (eye, eye[None], np.broadcast_to(eye, directions.shape)):
+        copied = prepare_rays(one, directions, check=False, keep_float32=True).with_origin_per_ray()
+        assert copied.origins.dtype == dtype and copied.origins.flags.c_contiguous
+        np.testing.assert_array_equal(copied.origins, np.tile(eye, (n, 1)))
+
+
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
 @pytest.mark.parametrize("form", ONE_ORIGIN_FORMS)
 @pytest.mark.parametrize("side", [40, 64], ids=["rays in a row", "image tiles"])
 def test_camera_rays_from_one_origin_match_brute_force_and_their_copies(small_dragon, walked, dtype, form, side):
