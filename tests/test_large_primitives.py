@@ -267,12 +267,13 @@ def test_a_large_sphere_is_kept_apart_too():
 
 
 @pytest.mark.parametrize("dtype", [np.float64, np.float32])
-def test_rays_from_one_origin_settle_and_walk_with_that_origin(dtype):
-    """A camera's rays given their eye once, through the kd-tree whose eight-wide walk takes one
-    origin: the large primitives settle most of them and the rest walk with the eye still given
-    once, every answer that of brute force on the eye copied to every ray."""
+@pytest.mark.parametrize("method", ["kdtree", "grid-bvh"])
+def test_rays_from_one_origin_settle_and_walk_with_that_origin(method, dtype):
+    """A camera's rays given their eye once, through the structures whose walks take one origin:
+    the large primitives settle most of them and the rest walk with the eye still given once,
+    every answer that of brute force on the eye copied to every ray."""
     scene = ground_and_clutter()
-    reference, accel = ra.build(scene, "none"), build(scene, "kdtree")
+    reference, accel = ra.build(scene, "none"), build(scene, method)
     camera = ra.Camera((4.0, 6.0, -3.0), (5.0, 0.0, 5.0), fov=50.0)
     origins, directions = (array.astype(dtype) for array in camera.rays(72, 64))
     eye = origins[0].copy()

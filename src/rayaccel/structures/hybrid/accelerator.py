@@ -100,9 +100,9 @@ class GridBvh(Accelerator):
         depth = (WIDTH - 1) * self.bvh_depth + 2
         stacks = (thread_rows((rows, depth), np.int32), thread_rows((rows, depth), np.int32),
                   thread_rows((rows, depth)), child_entry_rows(rows))
-        with self._mailboxes_for(action).lend(len(batch.origins)) as (mailbox, base):
+        with self._mailboxes_for(action).lend(batch.size) as (mailbox, base):
             walk = grid_bvh_nearest_kernel if action.mode == NEAREST else grid_bvh_crossings_kernel
-            return walk_rays(walk, len(batch.origins), h.lo, h.hi, h.res, h.cell_size, h.cell_first, h.cell_prims,
+            return walk_rays(walk, batch.size, h.lo, h.hi, h.res, h.cell_size, h.cell_first, h.cell_prims,
                              self.wide_root, self.wide, self.wide.view(np.int32), self.scene.kind, self.geometry,
                              *batch, any_hit, mailbox if len(mailbox) else None, base, *stacks, action, work)
 
@@ -115,6 +115,12 @@ class GridBvh(Accelerator):
     def _walk_takes_float32(self) -> bool:
         """The walk reads float32 rays as they are, as the eight-wide BVH's does."""
         return self.scene.kind == TRIANGLE
+
+    @property
+    def _walk_takes_shared_origin(self) -> bool:
+        """The walk reads its rays through :func:`rayaccel.rays.ray_at`, which takes one origin for
+        all as it takes one per ray: a camera's eye is not copied to every ray."""
+        return self._walk_takes_float32
 
     def _nearest(self, points, limit_d2, out_d2, out_prim):
         """Grid cells searched outward in shells, a dense cell's BVH walked by distance (:mod:`..grid.nearest`)."""
