@@ -98,37 +98,26 @@ def test_camera_rays_from_one_origin_match_brute_force_and_their_copies(small_dr
 
 
 @pytest.mark.parametrize("dtype", [np.float64, np.float32])
-def test_kdtree_cells_take_one_origin(small_dragon, walked, dtype):
-    """The kd-tree's cells, walked eight-wide, take a camera's one origin as the BVH does: the
-    same bits as its copy per ray, and brute force's hits."""
-    origins, directions = (array.astype(dtype) for array in camera_rays(small_dragon, 64))
-    brute, kdtree = ra.build(small_dragon, "none"), ra.build(small_dragon, "kdtree")
-    hits = kdtree.intersect(origins[0], directions)
-    assert walked == [("wide_packet_kernel", (3,))]
-    assert_same_hits(brute.intersect(origins, directions), hits)
-    copied = kdtree.intersect(np.ascontiguousarray(origins), directions)
-    for field in ("t", "prim", "u", "v"):
-        np.testing.assert_array_equal(getattr(hits, field), getattr(copied, field))
-    np.testing.assert_array_equal(kdtree.occluded(origins[0], directions), brute.occluded(origins, directions))
-
-
-@pytest.mark.parametrize("dtype", [np.float64, np.float32])
-def test_grid_bvh_takes_one_origin(small_dragon, dtype):
-    """The grid-BVH's walk reads one origin for all its rays as it reads one per ray: the same bits
-    as the origin's copy per ray, and brute force's hits, per-ray limits included."""
+@pytest.mark.parametrize("method", ["kdtree", "grid-bvh"])
+def test_kdtree_and_grid_bvh_take_one_origin(small_dragon, walked, method, dtype):
+    """The kd-tree's cells, walked eight-wide in the BVH's packets, and the grid-BVH's walk, which
+    reads its rays through ``ray_at``, take a camera's one origin as it is: the same bits as its
+    copy per ray, and brute force's hits, per-ray limits included."""
     origins, directions = (array.astype(dtype) for array in camera_rays(small_dragon, 48))
-    brute, grid_bvh = ra.build(small_dragon, "none"), ra.build(small_dragon, "grid-bvh")
-    assert grid_bvh._prepare_rays(origins[0], directions, 0.0, np.inf).shares_origin
+    brute, accel = ra.build(small_dragon, "none"), ra.build(small_dragon, method)
+    assert accel._prepare_rays(origins[0], directions, 0.0, np.inf).shares_origin
     n = len(directions)
     rng = np.random.default_rng(6)
     per_ray_limits = (rng.uniform(0.0, 0.3, n), np.where(rng.random(n) < 0.5, np.inf, rng.uniform(0.5, 1.5, n)))
     for limits in ((0.0, np.inf), per_ray_limits):
-        hits = grid_bvh.intersect(origins[0], directions, *limits)
+        walked.clear()
+        hits = accel.intersect(origins[0], directions, *limits)
+        assert walked == ([("wide_packet_kernel", (3,))] if method == "kdtree" else [])
         assert_same_hits(brute.intersect(origins, directions, *limits), hits)
-        copied = grid_bvh.intersect(np.ascontiguousarray(origins), directions, *limits)
+        copied = accel.intersect(np.ascontiguousarray(origins), directions, *limits)
         for field in ("t", "prim", "u", "v"):
             np.testing.assert_array_equal(getattr(hits, field), getattr(copied, field))
-        np.testing.assert_array_equal(grid_bvh.occluded(origins[0], directions, *limits),
+        np.testing.assert_array_equal(accel.occluded(origins[0], directions, *limits),
                                       brute.occluded(origins, directions, *limits))
 
 
