@@ -155,6 +155,34 @@ def test_one_origin_through_vertices_and_edges_matches_brute_force(small_dragon,
     assert walked[0][1] == ((3000, 3) if by_lane else (3,))
 
 
+@pytest.mark.parametrize("scene_name", ["dragon", "spheres"])
+@pytest.mark.parametrize("method", ["grid", "hgrid", "octree"])
+def test_grids_and_octree_take_one_origin(small_dragon, scene_name, method):
+    """The uniform grid's, the hierarchical grid's and the octree's walks read their rays through
+    ``ray_at`` and take a camera's one origin as it is: the same bits and counters as its copy per
+    ray, brute force's hits, per-ray limits included; a NaN origin refused."""
+    rng = np.random.default_rng(7)
+    scene = small_dragon if scene_name == "dragon" else ra.Spheres(rng.uniform(-1, 1, (300, 3)),
+                                                                    rng.uniform(0.01, 0.1, 300))
+    origins, directions = camera_rays(scene, 40)
+    brute, accel = ra.build(scene, "none"), ra.build(scene, method)
+    assert accel._prepare_rays(origins[0], directions, 0.0, np.inf).shares_origin
+    n = len(directions)
+    per_ray_limits = (rng.uniform(0.0, 0.3, n), np.where(rng.random(n) < 0.5, np.inf, rng.uniform(0.5, 1.5, n)))
+    for limits in ((0.0, np.inf), per_ray_limits):
+        hits = accel.intersect(origins[0], directions, *limits, counters=True)
+        assert_same_hits(brute.intersect(origins, directions, *limits), hits)
+        copied = accel.intersect(np.ascontiguousarray(origins), directions, *limits, counters=True)
+        for field in ("t", "prim", "u", "v", "geom"):
+            np.testing.assert_array_equal(getattr(hits, field), getattr(copied, field))
+        for field in hits.counters._fields:
+            np.testing.assert_array_equal(getattr(hits.counters, field), getattr(copied.counters, field))
+        np.testing.assert_array_equal(accel.occluded(origins[0], directions, *limits),
+                                      brute.occluded(origins, directions, *limits))
+    with pytest.raises(ValueError, match="NaN"):
+        accel.intersect(np.array([0.0, np.nan, 0.0]), directions)
+
+
 def test_other_structures_and_queries_take_one_origin(small_dragon):
     origins, directions = camera_rays(small_dragon, 33)
     brute = ra.build(small_dragon, "none")

@@ -139,7 +139,7 @@ class Accelerator(PointQueries):
         """:meth:`intersect` on array inputs (scenes of instances override it)."""
         rays, t, prim, u, v, geom, work = self._cast(origins, directions, t_min, t_max, any_hit, counters, reorder)
         if self.scene.kind == SPHERE:
-            sphere_hit_coords(self.scene.geometry, rays.origins, rays.directions, t, prim, u, v)
+            sphere_hit_coords(self.scene.geometry, rays.with_origin_per_ray().origins, rays.directions, t, prim, u, v)
         ray_counters = RayCounters(*(work[:, k].copy() for k in range(WORK_COLUMNS))) if counters else None
         return Hits(t, prim, u, v, ray_counters, geom)
 

@@ -46,6 +46,10 @@ class UniformGrid(Accelerator):
         concurrent queries from several Python threads each get their own.
     """
 
+    _walk_takes_shared_origin = True
+    """The walk reads its rays through :func:`rayaccel.rays.ray_at`, which takes one origin for all
+    rays as it takes one per ray: a camera's eye is not copied to every ray."""
+
     method = "grid"
 
     def __init__(self, scene, *, density: float = 8.0, resolution=None, insert: str = "bbox", mailbox: bool = True):
@@ -83,9 +87,9 @@ class UniformGrid(Accelerator):
 
     def _trace(self, batch, any_hit, action, work):
         g = self.grid
-        with self._mailboxes_for(action).lend(len(batch.origins)) as (mailbox, base):
+        with self._mailboxes_for(action).lend(batch.size) as (mailbox, base):
             walk = grid_closest_kernel if action.mode == NEAREST else grid_crossings_kernel
-            walk_rays(walk, len(batch.origins), g.lo, g.hi, g.res, g.cell_size, g.cell_first, g.cell_prims,
+            walk_rays(walk, batch.size, g.lo, g.hi, g.res, g.cell_size, g.cell_first, g.cell_prims,
                       self.scene.kind, self.scene.geometry, *batch, any_hit, mailbox, base, action, work)
 
     def _nearest(self, points, limit_d2, out_d2, out_prim):

@@ -23,7 +23,7 @@ import numpy as np
 from ..._jit import chunk_kernel, inline_kernel, kernel
 from ...geometry.box import clip_to_box
 from ...geometry.primitive import ray_setup
-from ...rays import ray_limit, result_row
+from ...rays import ray_at, ray_limit, result_row
 from ..actions import NEAREST, finish_ray_in_mode, intersect_references
 
 __all__ = ["axis_start", "dda_step", "grid_closest_kernel", "grid_crossings_kernel"]
@@ -76,8 +76,7 @@ def _walk(ray_first, ray_end, tid, grid_lo, grid_hi, res, cell_size, cell_first,
     for i in range(ray_first, ray_end):
         row = result_row(hit_slot, i)
         ray_t_min, ray_t_max = ray_limit(t_min, i), ray_limit(t_max, i)
-        ox, oy, oz = origins[i, 0], origins[i, 1], origins[i, 2]
-        dx, dy, dz = directions[i, 0], directions[i, 1], directions[i, 2]
+        ox, oy, oz, dx, dy, dz = ray_at(origins, directions, i)
         t_enter, t_exit = clip_to_box(grid_lo, grid_hi, ox, oy, oz, dx, dy, dz, ray_t_min, ray_t_max)
         if t_enter > t_exit:
             finish_ray_in_mode(mode, action, row, np.inf, -1, 0.0, 0.0)

@@ -41,6 +41,10 @@ class HierarchicalGrid(Accelerator):
         As for ``grid``: test each primitive at most once per ray.
     """
 
+    _walk_takes_shared_origin = True
+    """The walk reads its rays through :func:`rayaccel.rays.ray_at`, which takes one origin for all
+    rays as it takes one per ray: a camera's eye is not copied to every ray."""
+
     method = "hgrid"
     build_bytes_per_primitive = 700
 
@@ -68,9 +72,9 @@ class HierarchicalGrid(Accelerator):
         levels = int(h.grid_level.max()) + 1
         saved_int = thread_rows((rows, levels, 7), np.int64)
         saved_float = thread_rows((rows, levels, 7))
-        with self._mailboxes_for(action).lend(len(batch.origins)) as (mailbox, base):
+        with self._mailboxes_for(action).lend(batch.size) as (mailbox, base):
             walk = hgrid_closest_kernel if action.mode == NEAREST else hgrid_crossings_kernel
-            walk_rays(walk, len(batch.origins), h.lo, h.hi, h.grid_lo, h.grid_res, h.grid_cell_size, h.grid_cell_base,
+            walk_rays(walk, batch.size, h.lo, h.hi, h.grid_lo, h.grid_res, h.grid_cell_size, h.grid_cell_base,
                       h.cell_child, h.cell_first, h.cell_prims, self.scene.kind, self.scene.geometry, *batch, any_hit,
                       mailbox, base, saved_int, saved_float, action, work)
 

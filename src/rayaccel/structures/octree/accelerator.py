@@ -42,6 +42,10 @@ class Octree(Accelerator):
         every octant its bounding box overlaps (faster build, more references).
     """
 
+    _walk_takes_shared_origin = True
+    """The walk reads its rays through :func:`rayaccel.rays.ray_at`, which takes one origin for all
+    rays as it takes one per ray: a camera's eye is not copied to every ray."""
+
     method = "octree"
     build_bytes_per_primitive = 1000
 
@@ -73,9 +77,9 @@ class Octree(Accelerator):
         rows = numba.config.NUMBA_NUM_THREADS
         stack_node = thread_rows((rows, 3 * self.max_depth + 4), np.int32)
         stack_t = thread_rows((rows, 3 * self.max_depth + 4, 2))
-        with self._mailboxes_for(action).lend(len(batch.origins)) as (mailbox, base):
+        with self._mailboxes_for(action).lend(batch.size) as (mailbox, base):
             walk = octree_closest_kernel if action.mode == NEAREST else octree_crossings_kernel
-            walk_rays(walk, len(batch.origins), o.lo, o.hi, o.node_center, o.node_link, o.leaf_prims, self.scene.kind,
+            walk_rays(walk, batch.size, o.lo, o.hi, o.node_center, o.node_link, o.leaf_prims, self.scene.kind,
                       self.scene.geometry, *batch, any_hit, mailbox, base, stack_node, stack_t, action, work)
 
     def _nearest(self, points, limit_d2, out_d2, out_prim):
