@@ -313,8 +313,9 @@ class BoundingVolumeHierarchy(Accelerator):
     def _walk_takes_shared_origin(self) -> bool:
         """The eight-wide BVH's packet walk over triangles reads a camera's one origin once
         (:func:`trace_wide`), rather than a copy of it per ray: half the bytes a float64 camera ray
-        costs, and no copy to make."""
-        return self._walk_takes_float32
+        costs, and no copy to make; the binary walk reads its rays through
+        :func:`rayaccel.rays.ray_at`, which takes one origin for all as it takes one per ray."""
+        return self.wide is None or self._walk_takes_float32
 
     def _trace(self, batch, any_hit, action, work):
         rows = numba.config.NUMBA_NUM_THREADS
@@ -323,7 +324,7 @@ class BoundingVolumeHierarchy(Accelerator):
             stack_node = thread_rows((rows, self.max_depth + 2), np.int32)
             stack_t = thread_rows((rows, self.max_depth + 2))
             walk = bvh_closest_kernel if action.mode == NEAREST else bvh_crossings_kernel
-            walk_rays(walk, len(batch.origins), self.bounds_kind, b.node_records, self._volume_rows,
+            walk_rays(walk, batch.size, self.bounds_kind, b.node_records, self._volume_rows,
                       b.node_records.view(np.int32), b.prim_order, self.scene.kind, self.geometry, KDOP_NORMALS,
                       *batch, any_hit, stack_node, stack_t, action, work)
             return

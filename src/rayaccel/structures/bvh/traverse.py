@@ -22,7 +22,7 @@ from ..._jit import chunk_kernel, inline_kernel
 from ...geometry.kdop import KDOP_NORMALS
 from ...geometry.primitive import ray_setup
 from ...geometry.sphere import sphere_span
-from ...rays import ray_limit, result_row
+from ...rays import ray_at, ray_limit, result_row
 from ..actions import NEAREST, finish_ray_in_mode, visit_prim_in_mode
 
 __all__ = ["BOX", "SPHERE_VOLUME", "KDOP", "KDOP_NORMALS", "tighten", "enter_box", "volume_ray_setup",
@@ -131,8 +131,7 @@ def _walk(ray_first, ray_end, tid, bounds_kind, node_box, node_volume, node_link
     for i in range(ray_first, ray_end):
         row = result_row(hit_slot, i)
         ray_t_min, ray_t_max = ray_limit(t_min, i), ray_limit(t_max, i)
-        ox, oy, oz = origins[i, 0], origins[i, 1], origins[i, 2]
-        dx, dy, dz = directions[i, 0], directions[i, 1], directions[i, 2]
+        ox, oy, oz, dx, dy, dz = ray_at(origins, directions, i)
         ray = ray_setup(ox, oy, oz, dx, dy, dz)
         proj_o, proj_inv, near_faces = volume_ray_setup(ox, oy, oz, dx, dy, dz, normals, bounds_kind == KDOP)
         best_t = ray_t_max
