@@ -156,12 +156,12 @@ def test_one_origin_through_vertices_and_edges_matches_brute_force(small_dragon,
 
 
 @pytest.mark.parametrize("scene_name", ["dragon", "spheres"])
-@pytest.mark.parametrize("method, options", [("grid", {}), ("hgrid", {}), ("octree", {}), ("bvh-binned", {"width": 2}),
+@pytest.mark.parametrize("method, options", [("grid", {}), ("hgrid", {}), ("bvh-binned", {"width": 2}),
                                              ("bvh-binned", {"bounds": "kdop"})])
 def test_walks_reading_rays_through_ray_at_take_one_origin(small_dragon, scene_name, method, options):
-    """The walks of the uniform and hierarchical grids, the octree and the binary BVH read their rays
-    through ``ray_at`` and take a camera's one origin as it is: the same bits and counters as its
-    copy per ray, brute force's hits, per-ray limits included; a NaN origin refused."""
+    """The walks of the uniform and hierarchical grids and the binary BVH read their rays through
+    ``ray_at`` and take a camera's one origin as it is: the same bits and counters as its copy per
+    ray, brute force's hits, per-ray limits included; a NaN origin refused."""
     rng = np.random.default_rng(7)
     scene = small_dragon if scene_name == "dragon" else ra.Spheres(rng.uniform(-1, 1, (300, 3)),
                                                                     rng.uniform(0.01, 0.1, 300))

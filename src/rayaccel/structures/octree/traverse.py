@@ -18,7 +18,7 @@ import numpy as np
 from ..._jit import chunk_kernel, inline_kernel
 from ...geometry.box import clip_to_box
 from ...geometry.primitive import ray_setup
-from ...rays import ray_at, ray_limit, result_row
+from ...rays import ray_limit, result_row
 from ..actions import NEAREST, finish_ray_in_mode, intersect_references
 from ..base import settled_before
 
@@ -51,7 +51,8 @@ def _walk(ray_first, ray_end, tid, lo, hi, node_center, node_link, leaf_prims, k
     for i in range(ray_first, ray_end):
         row = result_row(hit_slot, i)
         ray_t_min, ray_t_max = ray_limit(t_min, i), ray_limit(t_max, i)
-        ox, oy, oz, dx, dy, dz = ray_at(origins, directions, i)
+        ox, oy, oz = origins[i, 0], origins[i, 1], origins[i, 2]
+        dx, dy, dz = directions[i, 0], directions[i, 1], directions[i, 2]
         t0, t1 = clip_to_box(lo, hi, ox, oy, oz, dx, dy, dz, ray_t_min, ray_t_max)
         if t0 > t1:
             finish_ray_in_mode(mode, action, row, np.inf, -1, 0.0, 0.0)
