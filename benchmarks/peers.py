@@ -256,10 +256,13 @@ class MitsubaPeer(Subject):
     def prepare(self, rays: RaySet):
         mi, dr = self.mi, self.dr
         origins, directions, t_max = rays.without_t_min()
-        columns = [mi.Float(np.ascontiguousarray(a[:, k], np.float32)) for a in (origins, directions) for k in range(3)]
+
+        def columns(array):
+            return [mi.Float(np.ascontiguousarray(array[:, k], np.float32)) for k in range(3)]
+
         one = rays.one_origin() if rays.t_min == 0.0 else None
-        origin = mi.Point3f(*columns[:3]) if one is None else mi.Point3f(*one[0].astype(np.float32).tolist())
-        ray = mi.Ray3f(origin, mi.Vector3f(*columns[3:]))
+        origin = mi.Point3f(*columns(origins)) if one is None else mi.Point3f(*one[0].astype(np.float32).tolist())
+        ray = mi.Ray3f(origin, mi.Vector3f(*columns(directions)))
         if np.isfinite(t_max):
             ray.maxt = dr.full(mi.Float, t_max, len(rays))
         dr.eval(ray)

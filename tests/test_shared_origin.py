@@ -41,6 +41,26 @@ def walked(monkeypatch):
     return walks
 
 
+def per_ray_limits(rng, n):
+    """``(t_min, t_max)`` per ray: ``t_min`` in [0, 0.3], ``t_max`` infinite or in [0.5, 1.5]."""
+    return rng.uniform(0.0, 0.3, n), np.where(rng.random(n) < 0.5, np.inf, rng.uniform(0.5, 1.5, n))
+
+
+def assert_as_brute_force_and_the_copy(brute, accel, hits, one, origins, directions, limits):
+    """``hits``, ``accel``'s answer to the rays from the one origin ``one`` within ``limits``, are
+    brute force's, and bit for bit (counters too, when asked for) those of the origin copied to
+    every ray; so is ``occluded``."""
+    assert_same_hits(brute.intersect(origins, directions, *limits), hits)
+    copied = accel.intersect(np.ascontiguousarray(origins), directions, *limits, counters=hits.counters is not None)
+    for field in ("t", "prim", "u", "v", "geom"):
+        np.testing.assert_array_equal(getattr(hits, field), getattr(copied, field))
+    if hits.counters is not None:
+        for field in hits.counters._fields:
+            np.testing.assert_array_equal(getattr(hits.counters, field), getattr(copied.counters, field))
+    np.testing.assert_array_equal(accel.occluded(one, directions, *limits),
+                                  brute.occluded(origins, directions, *limits))
+
+
 @pytest.mark.parametrize("form", ONE_ORIGIN_FORMS)
 def test_one_origin_stays_one_only_where_asked(form):
     eye_view, directions = camera_rays(ra.TriangleMesh(np.eye(3), [[0, 1, 2]]), 8)
@@ -81,20 +101,12 @@ def test_camera_rays_from_one_origin_match_brute_force_and_their_copies(small_dr
     n = len(directions) - 2 * SPAN - 3
     origins, directions = origins[:n].astype(dtype), directions[:n].astype(dtype)
     one = ONE_ORIGIN_FORMS[form](origins)
-    rng = np.random.default_rng(4)
-    t_min = rng.uniform(0.0, 0.3, n)
-    t_max = np.where(rng.random(n) < 0.5, np.inf, rng.uniform(0.5, 1.5, n))
     brute, bvh = ra.build(small_dragon, "none"), ra.build(small_dragon, "bvh-binned")
-    for limits in ((0.0, np.inf), (t_min, t_max)):
+    for limits in ((0.0, np.inf), per_ray_limits(np.random.default_rng(4), n)):
         walked.clear()
         hits = bvh.intersect(one, directions, *limits)
         assert walked == [("wide_packet_kernel", (3,))]
-        assert_same_hits(brute.intersect(origins, directions, *limits), hits)
-        for field in ("t", "prim", "u", "v"):
-            np.testing.assert_array_equal(getattr(hits, field), getattr(bvh.intersect(origins, directions, *limits),
-                                                                        field))
-        np.testing.assert_array_equal(bvh.occluded(one, directions, *limits),
-                                      brute.occluded(origins, directions, *limits))
+        assert_as_brute_force_and_the_copy(brute, bvh, hits, one, origins, directions, limits)
 
 
 @pytest.mark.parametrize("dtype", [np.float64, np.float32])
@@ -106,19 +118,11 @@ def test_kdtree_and_grid_bvh_take_one_origin(small_dragon, walked, method, dtype
     origins, directions = (array.astype(dtype) for array in camera_rays(small_dragon, 48))
     brute, accel = ra.build(small_dragon, "none"), ra.build(small_dragon, method)
     assert accel._prepare_rays(origins[0], directions, 0.0, np.inf).shares_origin
-    n = len(directions)
-    rng = np.random.default_rng(6)
-    per_ray_limits = (rng.uniform(0.0, 0.3, n), np.where(rng.random(n) < 0.5, np.inf, rng.uniform(0.5, 1.5, n)))
-    for limits in ((0.0, np.inf), per_ray_limits):
+    for limits in ((0.0, np.inf), per_ray_limits(np.random.default_rng(6), len(directions))):
         walked.clear()
         hits = accel.intersect(origins[0], directions, *limits)
         assert walked == ([("wide_packet_kernel", (3,))] if method == "kdtree" else [])
-        assert_same_hits(brute.intersect(origins, directions, *limits), hits)
-        copied = accel.intersect(np.ascontiguousarray(origins), directions, *limits)
-        for field in ("t", "prim", "u", "v"):
-            np.testing.assert_array_equal(getattr(hits, field), getattr(copied, field))
-        np.testing.assert_array_equal(accel.occluded(origins[0], directions, *limits),
-                                      brute.occluded(origins, directions, *limits))
+        assert_as_brute_force_and_the_copy(brute, accel, hits, origins[0], origins, directions, limits)
 
 
 @pytest.mark.parametrize("n", [1, PACKET - 1, MIN_PACKET_RAYS - 1])
@@ -168,18 +172,9 @@ def test_walks_reading_rays_through_ray_at_take_one_origin(small_dragon, scene_n
     origins, directions = camera_rays(scene, 40)
     brute, accel = ra.build(scene, "none"), ra.build(scene, method, **options)
     assert accel._prepare_rays(origins[0], directions, 0.0, np.inf).shares_origin
-    n = len(directions)
-    per_ray_limits = (rng.uniform(0.0, 0.3, n), np.where(rng.random(n) < 0.5, np.inf, rng.uniform(0.5, 1.5, n)))
-    for limits in ((0.0, np.inf), per_ray_limits):
+    for limits in ((0.0, np.inf), per_ray_limits(rng, len(directions))):
         hits = accel.intersect(origins[0], directions, *limits, counters=True)
-        assert_same_hits(brute.intersect(origins, directions, *limits), hits)
-        copied = accel.intersect(np.ascontiguousarray(origins), directions, *limits, counters=True)
-        for field in ("t", "prim", "u", "v", "geom"):
-            np.testing.assert_array_equal(getattr(hits, field), getattr(copied, field))
-        for field in hits.counters._fields:
-            np.testing.assert_array_equal(getattr(hits.counters, field), getattr(copied.counters, field))
-        np.testing.assert_array_equal(accel.occluded(origins[0], directions, *limits),
-                                      brute.occluded(origins, directions, *limits))
+        assert_as_brute_force_and_the_copy(brute, accel, hits, origins[0], origins, directions, limits)
     with pytest.raises(ValueError, match="NaN"):
         accel.intersect(np.array([0.0, np.nan, 0.0]), directions)
 

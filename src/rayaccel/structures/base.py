@@ -380,12 +380,11 @@ class Accelerator(PointQueries):
         copy them into float64: false unless a structure says otherwise."""
         return False
 
-    @property
-    def _walk_takes_shared_origin(self) -> bool:
-        """Whether the closest-hit and any-hit walk takes a batch whose rays share one origin as
-        that one origin (:attr:`rayaccel.rays.RayBatch.shares_origin`), so that :meth:`intersect`
-        and :meth:`occluded` need not copy it to every ray: false unless a structure says otherwise."""
-        return False
+    _walk_takes_shared_origin = False
+    """Whether the closest-hit and any-hit walk takes a batch whose rays share one origin as
+    that one origin (:attr:`rayaccel.rays.RayBatch.shares_origin`), so that :meth:`intersect`
+    and :meth:`occluded` need not copy it to every ray: true for a walk that reads its rays
+    through :func:`rayaccel.rays.ray_at`, which takes one origin for all as it takes one per ray."""
 
     @functools.cached_property
     def scene_box(self) -> tuple[np.ndarray, np.ndarray]:

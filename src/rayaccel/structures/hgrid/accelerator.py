@@ -42,8 +42,6 @@ class HierarchicalGrid(Accelerator):
     """
 
     _walk_takes_shared_origin = True
-    """The walk reads its rays through :func:`rayaccel.rays.ray_at`, which takes one origin for all
-    rays as it takes one per ray: a camera's eye is not copied to every ray."""
 
     method = "hgrid"
     build_bytes_per_primitive = 700

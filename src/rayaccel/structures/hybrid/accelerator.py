@@ -118,8 +118,7 @@ class GridBvh(Accelerator):
 
     @property
     def _walk_takes_shared_origin(self) -> bool:
-        """The walk reads its rays through :func:`rayaccel.rays.ray_at`, which takes one origin for
-        all as it takes one per ray: a camera's eye is not copied to every ray."""
+        """Over triangles, as for float32 rays: its walk reads rays through :func:`rayaccel.rays.ray_at`."""
         return self._walk_takes_float32
 
     def _nearest(self, points, limit_d2, out_d2, out_prim):
