@@ -181,7 +181,13 @@ def test_read_only_and_strided_inputs_give_the_contiguous_answer():
         wide[::2] = a
         return wide[::2]
 
-    for variant in (read_only, strided, np.asfortranarray):
+    def big_endian(a):
+        return a.astype(a.dtype.newbyteorder(">"))
+
+    def subclass(a):
+        return a.view(np.matrix) if a.ndim == 2 else a
+
+    for variant in (read_only, strided, np.asfortranarray, big_endian, subclass):
         mesh = ra.TriangleMesh(variant(vertices), variant(faces))
         hits = ra.build(mesh, "bvh-binned").intersect(variant(origins), variant(directions),
                                                       t_min=variant(np.zeros(50)))

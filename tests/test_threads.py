@@ -10,7 +10,15 @@ import pytest
 from conftest import assert_same_hits, random_rays
 
 import rayaccel as ra
-from rayaccel._jit import chunk_count, on_threads, set_threads, share_among_threads, thread_count, thread_rows
+from rayaccel._jit import (
+    chunk_count,
+    lent_rows,
+    on_threads,
+    set_threads,
+    share_among_threads,
+    thread_count,
+    thread_rows,
+)
 
 
 @pytest.fixture
@@ -134,3 +142,64 @@ def test_builds_on_two_threads_make_the_tree_of_one(small_dragon, two_threads, m
     assert np.array_equal(np.sort(covered), np.arange(len(small_dragon)))
     origins, directions = random_rays(small_dragon, 2000, seed=4)
     assert_same_hits(binary_alone.intersect(origins, directions), binary_on_two.intersect(origins, directions))
+
+
+def _scratch(rows, width):
+    return thread_rows((rows, width)), thread_rows((rows, width), np.int32)
+
+
+def test_lent_rows_come_back_for_the_next_block_and_are_never_lent_twice():
+    """A block gets the scratch the block before it gave back (also after an error); blocks
+    within each other or on two Python threads at once each get their own; another key gets
+    another set."""
+    with lent_rows(_scratch, 2, 40) as first:
+        assert [a.shape[:1] for a in first] == [(2,), (2,)] and first[1].dtype == np.int32
+        with lent_rows(_scratch, 2, 40) as inner:
+            assert all(a is not b for a, b in zip(first, inner))
+    with pytest.raises(RuntimeError):
+        with lent_rows(_scratch, 2, 40) as again:
+            assert again is first or again is inner
+            raise RuntimeError("a walk failed")
+    with lent_rows(_scratch, 2, 41) as other:
+        assert other is not first and other is not inner and other[0].shape[1] >= 41
+    held = []
+    barrier = threading.Barrier(2)
+
+    def borrow():
+        with lent_rows(_scratch, 3, 8) as scratch:
+            held.append(scratch)
+            barrier.wait()
+
+    workers = [threading.Thread(target=borrow) for _ in range(2)]
+    for worker in workers:
+        worker.start()
+    for worker in workers:
+        worker.join()
+    assert held[0] is not held[1]
+    with lent_rows(_scratch, 3, 8) as scratch:
+        assert any(scratch is h for h in held)
+
+
+def test_queries_on_python_threads_at_once_give_the_hits_of_one(small_dragon):
+    """Each query borrows its own per-thread scratch (:func:`rayaccel._jit.lent_rows`), so queries
+    running side by side on Python threads answer as each would alone: camera rays (the packet
+    walk) and random rays (the walk of one ray at a time)."""
+    box = small_dragon.bounds()
+    batches = [ra.Camera.framing(box.scene_lo, box.scene_hi).rays(64, 64), random_rays(small_dragon, 20_000, seed=5)]
+    accel = ra.build(small_dragon, "bvh-binned")
+    alone = [(accel.intersect(*rays), accel.occluded(*rays)) for rays in batches]
+    results = []
+
+    def query(k):
+        for _ in range(4):
+            results.append((k, accel.intersect(*batches[k % 2]), accel.occluded(*batches[k % 2])))
+
+    workers = [threading.Thread(target=query, args=(k,)) for k in range(4)]
+    for worker in workers:
+        worker.start()
+    for worker in workers:
+        worker.join()
+    assert len(results) == 16
+    for k, hits, any_hit in results:
+        assert_same_hits(alone[k % 2][0], hits)
+        np.testing.assert_array_equal(alone[k % 2][1], any_hit)

@@ -54,8 +54,8 @@ from numba.parfors import parfor
 from ._cache_key import KernelCache
 
 __all__ = ["kernel", "inline_kernel", "chunk_kernel", "parallel_kernel", "chunk_count", "on_threads",
-           "share_among_threads", "set_threads", "thread_count", "max_threads", "thread_id", "thread_rows", "prefetch",
-           "emit_prefetch", "unsigned"]
+           "share_among_threads", "set_threads", "thread_count", "max_threads", "thread_id", "thread_rows", "lent_rows",
+           "prefetch", "emit_prefetch", "unsigned"]
 
 _COMMON = dict(nogil=True, error_model="numpy", fastmath=False)
 
@@ -503,6 +503,30 @@ def thread_rows(shape, dtype=np.float64) -> np.ndarray:
     raw = np.empty(size + _ROW_ALIGNMENT, dtype=np.uint8)
     offset = (-raw.ctypes.data) % _ROW_ALIGNMENT
     return raw[offset:offset + size].view(dtype).reshape(rows, width, *inner)
+
+
+_returned_rows = {}
+
+
+@contextlib.contextmanager
+def lent_rows(make, *key):
+    """The per-thread scratch ``make(*key)`` makes (a tuple of :func:`thread_rows`), lent for the
+    ``with`` block: one that an earlier block with the same ``make`` and ``key`` gave back, or
+    made anew when every one is lent out (blocks running on several Python threads at once, or
+    within each other), given back when the block ends. Its contents are what the last borrower
+    left, as uninitialised as a fresh :func:`thread_rows`. A query's scratch arrays, made afresh,
+    were among the Python work between a call's start and its first chunk, which slows with the
+    caches cold after a walk: eight ``thread_rows`` calls took 0.09-0.10 ms of a 5.2 ms query
+    (forest camera rays, any hit, two threads), 3 us each in a loop."""
+    returned = _returned_rows.setdefault((make, *key), [])
+    try:
+        scratch = returned.pop()
+    except IndexError:
+        scratch = make(*key)
+    try:
+        yield scratch
+    finally:
+        returned.append(scratch)
 
 
 @intrinsic

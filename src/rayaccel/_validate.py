@@ -151,6 +151,31 @@ def as_points(name: str, values, *, allow_empty: bool = False, check_finite: boo
     """``values`` as a C-contiguous float64 (n, 3) array, or float32 when ``keep_float32`` and
     they are float32 already, of finite coordinates unless ``check_finite`` is False (the
     caller checks them later)."""
+    if _ready_points(values, keep_float32):
+        array = values
+    else:
+        array = _converted_points(name, values, keep_float32)
+    if array.shape[0] == 0 and not allow_empty:
+        raise ValueError(f"{name} is empty")
+    if check_finite and _first_nonfinite_row(array) >= 0:
+        raise _nonfinite_error(name, array, int((~np.isfinite(array).all(axis=1)).sum()))
+    return array
+
+
+_FLOAT64, _FLOAT32 = np.dtype(np.float64), np.dtype(np.float32)
+
+
+def _ready_points(values, keep_float32: bool) -> bool:
+    """Whether ``values`` is already what :func:`as_points` returns, told from its attributes alone:
+    a query runs this before its threads start, when each NumPy call costs several times its warm
+    time (the caches cold after the previous walk)."""
+    return (type(values) is np.ndarray and values.ndim == 2 and values.shape[1] == 3
+            and (values.dtype is _FLOAT64 or (keep_float32 and values.dtype is _FLOAT32))
+            and values.flags.c_contiguous and values.flags.writeable)
+
+
+def _converted_points(name: str, values, keep_float32: bool) -> np.ndarray:
+    """``values`` as :func:`as_points` returns them, before the checks of their count and values."""
     try:
         array = np.asarray(values)
     except Exception as exc:  # ragged nested sequences and the like
@@ -163,13 +188,8 @@ def as_points(name: str, values, *, allow_empty: bool = False, check_finite: boo
         array = array[None, :]
     if array.ndim != 2 or array.shape[1] != 3:
         raise ValueError(f"{name} must have shape (n, 3), got {array.shape}")
-    if array.shape[0] == 0 and not allow_empty:
-        raise ValueError(f"{name} is empty")
     kept = np.float32 if keep_float32 and array.dtype == np.float32 else np.float64
-    array = _owned(np.ascontiguousarray(array, dtype=kept))
-    if check_finite and _first_nonfinite_row(array) >= 0:
-        raise _nonfinite_error(name, array, int((~np.isfinite(array).all(axis=1)).sum()))
-    return array
+    return _owned(np.ascontiguousarray(array, dtype=kept))
 
 
 def as_index_triples(name: str, values, n_vertices: int) -> np.ndarray:
@@ -198,6 +218,10 @@ def as_index_triples(name: str, values, n_vertices: int) -> np.ndarray:
 def as_per_ray(name: str, value, n_rays: int, *, shared: bool = False) -> np.ndarray:
     """A scalar or an (n_rays,) array as a float64 (n_rays,) array without NaN; a scalar as a
     (1,) array when ``shared`` (one value for every ray)."""
+    if type(value) is float or type(value) is int:
+        if value != value:
+            raise ValueError(f"{name} contains NaN")
+        return np.array((value,), dtype=np.float64) if shared else np.full(n_rays, float(value))
     array = np.asarray(value, dtype=np.float64)
     if array.ndim == 0:
         if np.isnan(array):

@@ -44,6 +44,7 @@ too (full dragon, 52 MB, 2 threads, seven rounds: time sorted over time as given
 from __future__ import annotations
 
 import functools
+import math
 from pathlib import Path
 from typing import NamedTuple
 
@@ -53,6 +54,7 @@ from numba import prange
 from ._jit import kernel, parallel_kernel, thread_count
 from .counting_sort import chunk_range, counts_to_starts
 from .rays import RayBatch, ray_at, result_row
+from .selection import median_in_place
 
 __all__ = ["MIN_RAYS", "MIN_PACKET_RAYS", "coherent_batch", "last_level_cache_bytes", "second_level_cache_bytes",
            "sorting_pays", "Neighbours", "sample_neighbours", "packets_pay", "lane_packets_pay",
@@ -153,15 +155,18 @@ class Neighbours(NamedTuple):
 
     def head_alike(self, angle: float) -> bool:
         """Whether half of the sampled neighbours or more head within ``angle`` radians."""
-        return bool(self.cosine >= np.cos(angle))
+        return self.cosine >= math.cos(angle)
 
 
 @kernel
-def _neighbour_pairs(origins, directions, run, gap, steps, cosines):
-    """For the rays ``(k // run) * gap + k % run`` (runs of ``run`` consecutive rays, ``gap``
-    apart) and their successors: the largest coordinate difference of their origins into
-    ``steps[k]`` and the cosine of the angle between their directions into ``cosines[k]``."""
-    for k in range(steps.shape[0]):
+def _neighbour_medians(origins, directions, scene_lo, scene_hi, run, gap, pairs):
+    """``(origin step, scene size, cosine)`` of :class:`Neighbours` from ``pairs`` rays ``(k // run) *
+    gap + k % run`` (runs of ``run`` consecutive rays, ``gap`` apart) and their successors: the
+    medians of the largest coordinate difference of their origins and of the cosine of the angle
+    between their directions, and the longest side of the box ``scene_lo``..``scene_hi``."""
+    steps = np.empty(pairs)
+    cosines = np.empty(pairs)
+    for k in range(pairs):
         i = (k // run) * gap + k % run
         step = 0.0
         dot = 0.0
@@ -176,6 +181,8 @@ def _neighbour_pairs(origins, directions, run, gap, steps, cosines):
             square_1 += following[axis + 3] ** 2
         steps[k] = step
         cosines[k] = dot / np.sqrt(square_0 * square_1)
+    scene_size = max(scene_hi[0] - scene_lo[0], scene_hi[1] - scene_lo[1], scene_hi[2] - scene_lo[2])
+    return median_in_place(steps), scene_size, median_in_place(cosines)
 
 
 def _sample_stride(n: int) -> int:
@@ -187,25 +194,17 @@ def sample_neighbours(batch: RayBatch, scene_lo, scene_hi) -> Neighbours:
     """The :class:`Neighbours` of ``batch`` in a scene whose box is ``scene_lo``..``scene_hi``,
     from at most :data:`_SAMPLE` pairs of consecutive rays, in :data:`_SAMPLE_RUNS` runs; a batch of fewer than two rays
     counts as coherent. A walk's choices (:func:`packets_pay`, :func:`lane_packets_pay`,
-    :func:`interleaving_pays`) share one sample."""
+    :func:`interleaving_pays`) share one sample. One kernel takes it (:func:`_neighbour_medians`):
+    for 1024^2 forest camera rays, 23 us in a loop and 56 us in a query, after its walk; the
+    scene's size, the sample's arrays and its medians taken in NumPy beside the kernel made it
+    189 us in a query (medians of 15, 2026-12-07), each NumPy call slow with the caches cold."""
     n = batch.size
-    scene_size = float(np.max(scene_hi - scene_lo))
     if n < 2:
-        return Neighbours(n, 0.0, scene_size, 1.0)
+        return Neighbours(n, 0.0, float(np.max(scene_hi - scene_lo)), 1.0)
     pairs = min(n - 1, _SAMPLE)
     run = pairs if pairs < _SAMPLE else _SAMPLE // _SAMPLE_RUNS
     gap = run if pairs < _SAMPLE else (n - 1 - run) // (_SAMPLE_RUNS - 1)
-    steps, cosines = np.empty(pairs), np.empty(pairs)
-    _neighbour_pairs(batch.origins, batch.directions, run, gap, steps, cosines)
-    return Neighbours(n, _median(steps), scene_size, _median(cosines))
-
-
-def _median(values: np.ndarray) -> float:
-    """``np.median`` of a float64 array, from a partial sort: ``np.median`` itself took 27 us a
-    call on 1023 numbers, most of it in its checks."""
-    half = len(values) // 2
-    middle = np.partition(values, [half - 1, half] if len(values) % 2 == 0 else half)
-    return float(middle[half]) if len(values) % 2 else float(0.5 * (middle[half - 1] + middle[half]))
+    return Neighbours(n, *_neighbour_medians(batch.origins, batch.directions, scene_lo, scene_hi, run, gap, pairs))
 
 
 def packets_pay(batch: RayBatch, scene_lo, scene_hi, sampled: Neighbours | None = None) -> bool:

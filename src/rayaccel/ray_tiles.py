@@ -33,6 +33,7 @@ from __future__ import annotations
 import numpy as np
 
 from ._jit import inline_kernel, kernel
+from .selection import median_in_place
 
 __all__ = ["TILE_COLUMNS", "TILE_ROWS", "image_row_length", "tile_ray", "first_tile", "next_tile", "lane_ray",
            "run_rays"]
@@ -112,7 +113,7 @@ def _tile_and_row_spreads(directions, width, samples):
                 row_lo, row_hi = min(row_lo, in_row), max(row_hi, in_row)
             tile_spread[k] += tile_hi - tile_lo
             row_spread[k] += row_hi - row_lo
-    return np.median(tile_spread), np.median(row_spread)
+    return median_in_place(tile_spread), median_in_place(row_spread)
 
 
 def image_row_length(directions: np.ndarray, multiple: int = TILE_COLUMNS) -> int:
@@ -130,10 +131,10 @@ def image_row_length(directions: np.ndarray, multiple: int = TILE_COLUMNS) -> in
     box, say) keep their first rows whole and passed the tiles' test alone: its tiles then
     paired rays from places far apart, whose packets crossed the whole tree (the forest's
     878,537 camera rays that miss its box, two threads, closest hit: 129 ms in such tiles,
-    8 ms walked one by one). Three small kernels read the rays: 8 us for 1024^2 camera rays,
-    of which the row check takes 4 (medians of 50, 2026-12-06); the two other steps in NumPy
-    took 160 us, which the forest's camera rays, 4.5 ms a call for an any hit on two threads,
-    felt."""
+    8 ms walked one by one). Three small kernels read the rays, each called only when the one
+    before passes (a batch that is not an image compiles the first alone): 8 us for 1024^2 camera
+    rays, of which the row check takes 4 (medians of 50, 2026-12-06), 72 us in a query, after its
+    walk (2026-12-07); with two of the steps in NumPy, 160 us."""
     n = len(directions)
     if n < 2 * TILE_COLUMNS + 1:
         return 0

@@ -7,7 +7,7 @@ import time
 import numba
 import numpy as np
 
-from ..._jit import thread_count, thread_rows
+from ..._jit import lent_rows, thread_count, thread_rows
 from ..._validate import check_flag, check_number
 from ...geometry.gather import layout_nbytes, layout_rows
 from ...geometry.kdop import KDOP_NORMALS, kdop_surface_areas
@@ -80,6 +80,18 @@ def wide_stacks(rows: int, depth: int) -> tuple[np.ndarray, np.ndarray, np.ndarr
     return thread_rows((rows, size), np.int32), thread_rows((rows, size), np.int32), thread_rows((rows, size))
 
 
+def _single_scratch(rows: int, depth: int) -> tuple:
+    """The per-thread scratch of the walk of one ray at a time (:mod:`.traverse_wide`)."""
+    return *wide_stacks(rows, depth), child_entry_rows(rows)
+
+
+def _packet_scratch(rows: int, depth: int) -> tuple:
+    """The per-thread scratch of the packet walks (:mod:`.traverse_packet`)."""
+    return (*wide_stacks(rows, depth), thread_rows((rows, WIDTH)), thread_rows((rows, LANE_ROWS * PACKET)),
+            thread_rows((rows, LANE_SLAB_ROWS * PACKET), np.float32), thread_rows((rows, BOUND_VALUES)),
+            thread_rows((rows, PACKET), np.int64))
+
+
 def trace_wide(records, root_record, prim_order, kind, geometry, depth, batch, any_hit, action, work, *, packets,
                interleave, scene_box, nbytes):
     """Trace ``batch`` through eight-wide ``records`` (:mod:`.wide`) over ``geometry`` in leaf order
@@ -97,11 +109,9 @@ def trace_wide(records, root_record, prim_order, kind, geometry, depth, batch, a
     tree = (records, records.view(np.int32), prim_order, kind, geometry)
 
     def in_packets(walk, batch):
-        return walk_rays(walk, n_rays, root_record, *tree, *batch, any_hit, *wide_stacks(rows, depth),
-                         thread_rows((rows, WIDTH)), thread_rows((rows, LANE_ROWS * PACKET)),
-                         thread_rows((rows, LANE_SLAB_ROWS * PACKET), np.float32), thread_rows((rows, BOUND_VALUES)),
-                         thread_rows((rows, PACKET), np.int64), image_row_length(batch.directions, SPAN // TILE_ROWS),
-                         action, align=SPAN)
+        with lent_rows(_packet_scratch, rows, depth) as scratch:
+            return walk_rays(walk, n_rays, root_record, *tree, *batch, any_hit, *scratch,
+                             image_row_length(batch.directions, SPAN // TILE_ROWS), action, align=SPAN)
 
     sampled = None
     if work is None and packets and n_rays >= MIN_PACKET_RAYS:
@@ -117,8 +127,8 @@ def trace_wide(records, root_record, prim_order, kind, geometry, depth, batch, a
                          child_entry_rows(rows), SLOTS, thread_rows((rows, SLOTS, SLOT_INTS), np.int64),
                          thread_rows((rows, SLOTS, SLOT_FLOATS)), action, work)
     walk = _WIDE_WALKS.get(action.mode, wide_crossings_kernel)
-    return walk_rays(walk, n_rays, root_record, *tree, *batch, any_hit, *wide_stacks(rows, depth),
-                     child_entry_rows(rows), action, work)
+    with lent_rows(_single_scratch, rows, depth) as scratch:
+        return walk_rays(walk, n_rays, root_record, *tree, *batch, any_hit, *scratch, action, work)
 
 
 class BoundingVolumeHierarchy(Accelerator):
