@@ -185,7 +185,7 @@ def test_queries_on_python_threads_at_once_give_the_hits_of_one(small_dragon):
     running side by side on Python threads answer as each would alone: camera rays (the packet
     walk) and random rays (the walk of one ray at a time)."""
     box = small_dragon.bounds()
-    batches = [ra.Camera.framing(box.scene_lo, box.scene_hi).rays(64, 64), random_rays(small_dragon, 20_000, seed=5)]
+    batches = [ra.Camera.framing(box.scene_lo, box.scene_hi).rays(64, 64), random_rays(small_dragon, 4_000, seed=5)]
     accel = ra.build(small_dragon, "bvh-binned")
     alone = [(accel.intersect(*rays), accel.occluded(*rays)) for rays in batches]
     results = []
