@@ -51,7 +51,7 @@ from .volumes import fit_kdops, fit_spheres
 from .wide import WIDTH, wide_records, wide_tree
 from .wide_slab import child_entry_rows
 
-__all__ = ["BVH_CLASSES", "trace_wide", "wide_stacks"]
+__all__ = ["BVH_CLASSES", "trace_wide", "wide_stacks", "single_walk_scratch"]
 
 _BOUNDS = {"aabb": BOX, "sphere": SPHERE_VOLUME, "kdop": KDOP}
 
@@ -80,8 +80,9 @@ def wide_stacks(rows: int, depth: int) -> tuple[np.ndarray, np.ndarray, np.ndarr
     return thread_rows((rows, size), np.int32), thread_rows((rows, size), np.int32), thread_rows((rows, size))
 
 
-def _single_scratch(rows: int, depth: int) -> tuple:
-    """The per-thread scratch of the walk of one ray at a time (:mod:`.traverse_wide`)."""
+def single_walk_scratch(rows: int, depth: int) -> tuple:
+    """The per-thread scratch of the eight-wide walk of one ray at a time (:mod:`.traverse_wide`; the
+    grid-BVH's cells walk it too): :func:`wide_stacks` and the children's entry distances."""
     return *wide_stacks(rows, depth), child_entry_rows(rows)
 
 
@@ -127,7 +128,7 @@ def trace_wide(records, root_record, prim_order, kind, geometry, depth, batch, a
                          child_entry_rows(rows), SLOTS, thread_rows((rows, SLOTS, SLOT_INTS), np.int64),
                          thread_rows((rows, SLOTS, SLOT_FLOATS)), action, work)
     walk = _WIDE_WALKS.get(action.mode, wide_crossings_kernel)
-    with lent_rows(_single_scratch, rows, depth) as scratch:
+    with lent_rows(single_walk_scratch, rows, depth) as scratch:
         return walk_rays(walk, n_rays, root_record, *tree, *batch, any_hit, *scratch, action, work)
 
 

@@ -7,16 +7,16 @@ import time
 import numba
 import numpy as np
 
-from ..._jit import thread_rows
+from ..._jit import lent_rows
 from ..._validate import check_number
 from ...geometry.gather import layout_nbytes
 from ...geometry.kinds import TRIANGLE
 from ...stats import box_area, surface_area_stats
 from ..actions import NEAREST
 from ..base import Accelerator, walk_rays
+from ..bvh.accelerator import single_walk_scratch
 from ..bvh.nodes import rounding_margin
-from ..bvh.wide import WIDTH, wide_records, wide_tree
-from ..bvh.wide_slab import child_entry_rows
+from ..bvh.wide import wide_records, wide_tree
 from ..grid.mailbox import MailboxPool
 from ..grid.nearest import grid_nearest
 from .build_grid_bvh import build_grid_bvh
@@ -96,11 +96,8 @@ class GridBvh(Accelerator):
 
     def _trace(self, batch, any_hit, action, work):
         h = self.hybrid
-        rows = numba.config.NUMBA_NUM_THREADS
-        depth = (WIDTH - 1) * self.bvh_depth + 2
-        stacks = (thread_rows((rows, depth), np.int32), thread_rows((rows, depth), np.int32),
-                  thread_rows((rows, depth)), child_entry_rows(rows))
-        with self._mailboxes_for(action).lend(batch.size) as (mailbox, base):
+        scratch = lent_rows(single_walk_scratch, numba.config.NUMBA_NUM_THREADS, self.bvh_depth)
+        with self._mailboxes_for(action).lend(batch.size) as (mailbox, base), scratch as stacks:
             walk = grid_bvh_nearest_kernel if action.mode == NEAREST else grid_bvh_crossings_kernel
             return walk_rays(walk, batch.size, h.lo, h.hi, h.res, h.cell_size, h.cell_first, h.cell_prims,
                              self.wide_root, self.wide, self.wide.view(np.int32), self.scene.kind, self.geometry,
