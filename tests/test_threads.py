@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import threading
 import time
 
@@ -10,6 +11,7 @@ import pytest
 from conftest import assert_same_hits, random_rays
 
 import rayaccel as ra
+from rayaccel._helper_threads import HelperThreads
 from rayaccel._jit import (
     chunk_count,
     lent_rows,
@@ -203,3 +205,23 @@ def test_queries_on_python_threads_at_once_give_the_hits_of_one(small_dragon):
     for k, hits, any_hit in results:
         assert_same_hits(alone[k % 2][0], hits)
         np.testing.assert_array_equal(alone[k % 2][1], any_hit)
+
+
+@pytest.mark.skipif(not hasattr(os, "sched_setaffinity") or len(os.sched_getaffinity(0)) < 2,
+                    reason="needs Linux's thread affinity and two CPUs")
+@pytest.mark.parametrize("caller_cpu", [0, 1])
+def test_helpers_may_run_on_every_cpu_of_the_caller_but_its_own(caller_cpu):
+    caller_may_use = os.sched_getaffinity(0)
+    cpu = sorted(caller_may_use)[caller_cpu]
+    pool = HelperThreads(3)
+    pool._current_cpu = lambda: cpu
+    pool.keep_off_caller()
+    where_helpers_run = {frozenset(pool.submit(lambda _: os.sched_getaffinity(0), k).result()) for k in range(6)}
+    assert where_helpers_run == {frozenset(caller_may_use - {cpu})}
+
+
+def test_helpers_without_thread_ids_run_wherever_the_system_puts_them():
+    pool = HelperThreads(2)
+    pool._thread_ids = []
+    pool.keep_off_caller()
+    assert pool.submit(lambda row: row * 3, 5).result() == 15

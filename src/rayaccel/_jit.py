@@ -35,7 +35,7 @@ import copy
 import itertools
 import math
 import os
-from concurrent.futures import ThreadPoolExecutor, wait
+from concurrent.futures import wait
 
 import numba
 import numpy as np
@@ -52,6 +52,7 @@ from numba.extending import intrinsic
 from numba.parfors import parfor
 
 from ._cache_key import KernelCache
+from ._helper_threads import HelperThreads
 
 __all__ = ["kernel", "inline_kernel", "chunk_kernel", "parallel_kernel", "chunk_count", "on_threads",
            "share_among_threads", "set_threads", "thread_count", "max_threads", "thread_id", "thread_rows", "lent_rows",
@@ -377,13 +378,13 @@ def parallel_kernel(func):
 _pool = {}
 
 
-def _thread_pool() -> ThreadPoolExecutor:
-    """One pool of ``max_threads()`` Python threads per process, made on first use (a forked
+def _thread_pool() -> HelperThreads:
+    """One pool of ``max_threads()`` helper threads per process, made on first use (a forked
     child gets its own: the parent's threads do not exist in it)."""
     pid = os.getpid()
     if pid not in _pool:
         _pool.clear()
-        _pool[pid] = ThreadPoolExecutor(max_threads(), thread_name_prefix="rayaccel")
+        _pool[pid] = HelperThreads(max_threads())
     return _pool[pid]
 
 
@@ -456,8 +457,11 @@ def share_among_threads(run, n: int, chunk: int) -> None:
 
 def _with_helpers(work, threads: int) -> list:
     """``[work(0), ..., work(threads - 1)]``, ``work(0)`` on the calling thread while the pool's
-    threads run the others; every call has ended when this returns, or raises the first error."""
-    helpers = [_thread_pool().submit(work, row) for row in range(1, threads)]
+    threads run the others, kept off the caller's CPU (:mod:`rayaccel._helper_threads`); every
+    call has ended when this returns, or raises the first error."""
+    pool = _thread_pool()
+    pool.keep_off_caller()
+    helpers = [pool.submit(work, row) for row in range(1, threads)]
     try:
         mine = work(0)
     finally:
