@@ -153,6 +153,11 @@ def _one_row_if_repeated(origins):
     return origins
 
 
+_IN_ORDER = np.empty(0, dtype=np.int64)
+"""The ``hit_slot`` of a compact batch whose rays stay in the order given: empty, so shared by all
+(left writeable, as a read-only array would be another type to Numba, compiling every walk again)."""
+
+
 def prepare_rays(origins, directions, t_min=0.0, t_max=np.inf, *, compact: bool = False,
                  check: bool = True, keep_float32: bool = False, shared_origin: bool = False) -> RayBatch:
     """Validate and convert a ray batch once, at the Python boundary; a compact
@@ -183,7 +188,7 @@ def prepare_rays(origins, directions, t_min=0.0, t_max=np.inf, *, compact: bool 
         check_ray_arrays(origins, directions)
     n = len(directions)
     return RayBatch(origins, directions, as_per_ray("t_min", t_min, n, shared=compact),
-                    as_per_ray("t_max", t_max, n, shared=compact), np.arange(0 if compact else n, dtype=np.int64))
+                    as_per_ray("t_max", t_max, n, shared=compact), _IN_ORDER if compact else np.arange(n, dtype=np.int64))
 
 
 @inline_kernel

@@ -72,7 +72,9 @@ def walk_rays(walk, n_rays: int, *args, align: int = 1) -> int:
     threads free up; ``tid`` picks the chunk's rows of per-thread stacks and mailboxes. Returns
     the total of what the walk returns for its chunks: the unusable rays it met, for a walk that
     tests its rays itself (see :attr:`Accelerator._walk_checks_rays`), and 0 for one that
-    returns nothing."""
+    returns nothing. A batch of one chunk or less runs on the calling thread at once."""
+    if n_rays <= RAY_CHUNK:
+        return walk(0, n_rays, 0, *args) or 0
     chunk = max(RAY_CHUNK, -(-n_rays // (CHUNKS_PER_THREAD * thread_count())))
     chunk = -(-chunk // align) * align
     found = []
