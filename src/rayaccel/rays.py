@@ -187,8 +187,9 @@ def prepare_rays(origins, directions, t_min=0.0, t_max=np.inf, *, compact: bool 
     if check:
         check_ray_arrays(origins, directions)
     n = len(directions)
+    hit_slot = _IN_ORDER if compact else np.arange(n, dtype=np.int64)
     return RayBatch(origins, directions, as_per_ray("t_min", t_min, n, shared=compact),
-                    as_per_ray("t_max", t_max, n, shared=compact), _IN_ORDER if compact else np.arange(n, dtype=np.int64))
+                    as_per_ray("t_max", t_max, n, shared=compact), hit_slot)
 
 
 @inline_kernel
