@@ -210,18 +210,38 @@ def test_queries_on_python_threads_at_once_give_the_hits_of_one(small_dragon):
 @pytest.mark.skipif(not hasattr(os, "sched_setaffinity") or len(os.sched_getaffinity(0)) < 2,
                     reason="needs Linux's thread affinity and two CPUs")
 @pytest.mark.parametrize("caller_cpu", [0, 1])
-def test_helpers_may_run_on_every_cpu_of_the_caller_but_its_own(caller_cpu):
+def test_a_pass_keeps_the_caller_and_the_helpers_on_different_cpus(caller_cpu):
     caller_may_use = os.sched_getaffinity(0)
     cpu = sorted(caller_may_use)[caller_cpu]
     pool = HelperThreads(3)
     pool._current_cpu = lambda: cpu
-    pool.keep_off_caller()
-    where_helpers_run = {frozenset(pool.submit(lambda _: os.sched_getaffinity(0), k).result()) for k in range(6)}
+    held = pool.begin_pass()
+    try:
+        assert os.sched_getaffinity(0) == {cpu}
+        where_helpers_run = {frozenset(pool.submit(lambda _: os.sched_getaffinity(0), k).result()) for k in range(6)}
+        assert pool.begin_pass() is None  # a pass begun meanwhile on another thread changes nothing
+        pool.end_pass(None)
+    finally:
+        pool.end_pass(held)
     assert where_helpers_run == {frozenset(caller_may_use - {cpu})}
+    assert os.sched_getaffinity(0) == caller_may_use
+
+
+@pytest.mark.skipif(not hasattr(os, "sched_setaffinity"), reason="needs Linux's thread affinity")
+def test_a_pass_gives_the_caller_its_cpus_back_after_an_error(two_threads):
+    caller_may_use = os.sched_getaffinity(0)
+
+    def run(first, end, row):
+        raise RuntimeError("chunk failed")
+
+    with pytest.raises(RuntimeError, match="chunk failed"):
+        share_among_threads(run, 64, 4)
+    assert os.sched_getaffinity(0) == caller_may_use
 
 
 def test_helpers_without_thread_ids_run_wherever_the_system_puts_them():
     pool = HelperThreads(2)
     pool._thread_ids = []
-    pool.keep_off_caller()
+    assert pool.begin_pass() is None
     assert pool.submit(lambda row: row * 3, 5).result() == 15
+    pool.end_pass(None)

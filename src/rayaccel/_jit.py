@@ -457,15 +457,19 @@ def share_among_threads(run, n: int, chunk: int) -> None:
 
 def _with_helpers(work, threads: int) -> list:
     """``[work(0), ..., work(threads - 1)]``, ``work(0)`` on the calling thread while the pool's
-    threads run the others, kept off the caller's CPU (:mod:`rayaccel._helper_threads`); every
-    call has ended when this returns, or raises the first error."""
+    threads run the others, the caller and they kept on different CPUs for the pass
+    (:mod:`rayaccel._helper_threads`); every call has ended when this returns, or raises the first
+    error."""
     pool = _thread_pool()
-    pool.keep_off_caller()
-    helpers = [pool.submit(work, row) for row in range(1, threads)]
+    caller_cpus = pool.begin_pass()
     try:
-        mine = work(0)
+        helpers = [pool.submit(work, row) for row in range(1, threads)]
+        try:
+            mine = work(0)
+        finally:
+            wait(helpers)
     finally:
-        wait(helpers)
+        pool.end_pass(caller_cpus)
     return [mine] + [helper.result() for helper in helpers]
 
 
