@@ -90,11 +90,11 @@ class HelperThreads:
             if self._passes > 1 or not self._thread_ids:
                 return None
         cpu = self._current_cpu()
-        caller_cpus = os.sched_getaffinity(0)
-        others = caller_cpus - {cpu}
-        if cpu < 0 or not others:
-            return None
         try:
+            caller_cpus = os.sched_getaffinity(0)
+            others = caller_cpus - {cpu}
+            if cpu < 0 or not others:
+                return None
             if (cpu, others) != self._helpers_on:
                 for thread_id in self._thread_ids:
                     os.sched_setaffinity(thread_id, others)
