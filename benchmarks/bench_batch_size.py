@@ -100,9 +100,9 @@ def table(times: dict, labels: list[str], ours: str) -> tuple[str, list[str], li
     header = ["rays", "batch", "query", *(f"{label} us" for label in labels), "best peer / rayaccel"]
     rows = []
     for (kind, size, query), cell in times.items():
-        best_peer = min(seconds for label, seconds in cell.items() if label != ours)
-        rows.append([kind, f"{size:,}", query, *(f"{cell[label] * 1e6:,.1f}" for label in labels),
-                     f"{best_peer / cell[ours]:.2f}"])
+        best_peer = min((seconds for label, seconds in cell.items() if label != ours), default=None)
+        ratio = "no peer" if best_peer is None else f"{best_peer / cell[ours]:.2f}"
+        rows.append([kind, f"{size:,}", query, *(f"{cell[label] * 1e6:,.1f}" for label in labels), ratio])
     return "microseconds a call (speed ratio: above 1, rayaccel is faster)", header, rows
 
 
