@@ -93,6 +93,12 @@ def _packet_scratch(rows: int, depth: int) -> tuple:
             thread_rows((rows, PACKET), np.int64))
 
 
+def _binary_walk_scratch(rows: int, depth: int) -> tuple[np.ndarray, np.ndarray]:
+    """The per-thread stacks of the binary walk (:mod:`.traverse`) of a tree ``depth`` deep: the
+    pending nodes and their entry distances."""
+    return thread_rows((rows, depth + 2), np.int32), thread_rows((rows, depth + 2))
+
+
 def trace_wide(records, root_record, prim_order, kind, geometry, depth, batch, any_hit, action, work, *, packets,
                interleave, scene_box, nbytes):
     """Trace ``batch`` through eight-wide ``records`` (:mod:`.wide`) over ``geometry`` in leaf order
@@ -332,12 +338,11 @@ class BoundingVolumeHierarchy(Accelerator):
         rows = numba.config.NUMBA_NUM_THREADS
         if self.wide is None:
             b = self.bvh
-            stack_node = thread_rows((rows, self.max_depth + 2), np.int32)
-            stack_t = thread_rows((rows, self.max_depth + 2))
             walk = bvh_closest_kernel if action.mode == NEAREST else bvh_crossings_kernel
-            walk_rays(walk, batch.size, self.bounds_kind, b.node_records, self._volume_rows,
-                      b.node_records.view(np.int32), b.prim_order, self.scene.kind, self.geometry, KDOP_NORMALS,
-                      *batch, any_hit, stack_node, stack_t, action, work)
+            with lent_rows(_binary_walk_scratch, rows, self.max_depth) as (stack_node, stack_t):
+                walk_rays(walk, batch.size, self.bounds_kind, b.node_records, self._volume_rows,
+                          b.node_records.view(np.int32), b.prim_order, self.scene.kind, self.geometry, KDOP_NORMALS,
+                          *batch, any_hit, stack_node, stack_t, action, work)
             return
         return trace_wide(self.wide, self.root_record, self.prim_order, self.scene.kind, self.geometry, self.max_depth,
                           batch, any_hit, action, work, packets=self.options.get("packets", True),

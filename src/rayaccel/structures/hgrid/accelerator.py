@@ -7,7 +7,7 @@ import time
 import numba
 import numpy as np
 
-from ..._jit import thread_rows
+from ..._jit import lent_rows, thread_rows
 from ..._validate import check_number
 from ...stats import box_area, surface_area_stats
 from ..actions import NEAREST
@@ -20,6 +20,11 @@ from .traverse import hgrid_closest_kernel, hgrid_crossings_kernel
 __all__ = ["HierarchicalGrid"]
 
 _INSERT_MODES = ("bbox", "exact")
+
+
+def _walk_scratch(rows: int, levels: int) -> tuple[np.ndarray, np.ndarray]:
+    """The walk's per-thread scratch: each level's saved DDA state, integers and floats."""
+    return thread_rows((rows, levels, 7), np.int64), thread_rows((rows, levels, 7))
 
 
 class HierarchicalGrid(Accelerator):
@@ -68,9 +73,8 @@ class HierarchicalGrid(Accelerator):
         h = self.hgrid
         rows = numba.config.NUMBA_NUM_THREADS
         levels = int(h.grid_level.max()) + 1
-        saved_int = thread_rows((rows, levels, 7), np.int64)
-        saved_float = thread_rows((rows, levels, 7))
-        with self._mailboxes_for(action).lend(batch.size) as (mailbox, base):
+        scratch = lent_rows(_walk_scratch, rows, levels)
+        with self._mailboxes_for(action).lend(batch.size) as (mailbox, base), scratch as (saved_int, saved_float):
             walk = hgrid_closest_kernel if action.mode == NEAREST else hgrid_crossings_kernel
             walk_rays(walk, batch.size, h.lo, h.hi, h.grid_lo, h.grid_res, h.grid_cell_size, h.grid_cell_base,
                       h.cell_child, h.cell_first, h.cell_prims, self.scene.kind, self.scene.geometry, *batch, any_hit,

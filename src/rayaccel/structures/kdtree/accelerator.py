@@ -9,7 +9,7 @@ from concurrent.futures import ThreadPoolExecutor
 import numba
 import numpy as np
 
-from ..._jit import kernel, thread_count, thread_rows
+from ..._jit import kernel, lent_rows, thread_count, thread_rows
 from ..._validate import check_flag, check_number
 from ...geometry.gather import layout_nbytes
 from ...geometry.kinds import TRIANGLE
@@ -139,6 +139,29 @@ def _tree_depth(kd: KdTreeArrays) -> int:
             return depth
         level = np.concatenate((links[parents], links[parents] + 1))
         depth += 1
+
+def _stacks(rows: int, depth: int) -> tuple[np.ndarray, np.ndarray]:
+    """``rows`` stacks for a tree ``depth`` deep: the pending cells' nodes and their intervals."""
+    return thread_rows((rows, depth + 2), np.int32), thread_rows((rows, depth + 2, 2))
+
+
+def _single_scratch(rows: int, depth: int) -> tuple[np.ndarray, ...]:
+    """The per-thread scratch of the binary walk of one ray at a time: its stacks and the ray's row."""
+    return (*_stacks(rows, depth), thread_rows((rows, RAY_ROW)))
+
+
+def _packet_scratch(rows: int, depth: int) -> tuple[np.ndarray, ...]:
+    """The per-thread scratch of the binary packet walk (:mod:`.traverse_packet`)."""
+    return (*_single_scratch(rows, depth), thread_rows((rows, depth + 2), np.int64),
+            thread_rows((rows, depth + 2, 2 * PACKET)), thread_rows((rows, PACKET_ROWS * PACKET)),
+            thread_rows((rows, PACKET), np.int64))
+
+
+def _interleaved_scratch(rows: int, depth: int) -> tuple[np.ndarray, ...]:
+    """The per-thread scratch of the walk with :data:`SLOTS` rays in flight: a stack per ray in
+    flight, then the rays' slots."""
+    return (*_stacks(rows * SLOTS, depth), thread_rows((rows, SLOTS, SLOT_INTS), np.int64),
+            thread_rows((rows, SLOTS, SLOT_FLOATS)))
 
 
 class KdTree(Accelerator):
@@ -426,17 +449,15 @@ class KdTree(Accelerator):
             rays = (k.lo, k.hi, *k.walk_records, skip_empty, self.refs, self.apart_first, apart_box,
                     self.scene.kind, self.geometry, *batch, any_hit, mailbox if mailbox.shape[0] else None, base)
             if walk is kdtree_packet_kernel:
-                walk_rays(walk, n_rays, *rays, *self._stacks(rows), thread_rows((rows, RAY_ROW)),
-                          thread_rows((rows, self.max_depth + 2), np.int64),
-                          thread_rows((rows, self.max_depth + 2, 2 * PACKET)),
-                          thread_rows((rows, PACKET_ROWS * PACKET)), thread_rows((rows, PACKET), np.int64),
-                          image_row_length(batch.directions), action, work, align=PACKET)
+                with lent_rows(_packet_scratch, rows, self.max_depth) as scratch:
+                    walk_rays(walk, n_rays, *rays, *scratch, image_row_length(batch.directions), action, work,
+                              align=PACKET)
             elif walk is interleaved_closest_kernel:
-                walk_rays(walk, n_rays, *rays, *self._stacks(rows * SLOTS), SLOTS,
-                          thread_rows((rows, SLOTS, SLOT_INTS), np.int64), thread_rows((rows, SLOTS, SLOT_FLOATS)),
-                          action, work)
+                with lent_rows(_interleaved_scratch, rows, self.max_depth) as (stack_node, stack_t, *slots):
+                    walk_rays(walk, n_rays, *rays, stack_node, stack_t, SLOTS, *slots, action, work)
             else:
-                walk_rays(walk, n_rays, *rays, *self._stacks(rows), thread_rows((rows, RAY_ROW)), action, work)
+                with lent_rows(_single_scratch, rows, self.max_depth) as scratch:
+                    walk_rays(walk, n_rays, *rays, *scratch, action, work)
 
     @property
     def _walk_gains_from_sorting(self) -> bool:
@@ -448,11 +469,6 @@ class KdTree(Accelerator):
         (medians of 7 interleaved rounds). So the binary walks' rays are sorted only without
         ``interleave``."""
         return self.cells is None and not self.options.get("interleave", True)
-
-    def _stacks(self, rows: int) -> tuple[np.ndarray, np.ndarray]:
-        """``rows`` stacks as deep as the tree: the pending cells' nodes and their intervals."""
-        depth = self.max_depth + 2
-        return thread_rows((rows, depth), np.int32), thread_rows((rows, depth, 2))
 
     def _nearest_walk(self, batch, work):
         """The closest-hit and any-hit walk for ``batch``: packets for a coherent batch (the
