@@ -26,16 +26,27 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from .._jit import thread_rows
+from .._jit import lent_rows, thread_rows
 from ..geometry.kinds import TRIANGLE
 from ..points import ClosestPoints, check_accuracy, check_max_distance, prepare_points
 from .point_actions import empty_closest, finish_closest
 from .ray_winding import ray_winding_number
 
-__all__ = ["PointQueries", "any_dask"]
+__all__ = ["PointQueries", "any_dask", "nearest_walk_scratch"]
 
 
 _NOT_DASK = frozenset((np.ndarray, float, int))
+
+
+def nearest_walk_scratch(rows: int, depth: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The per-thread stacks, ``depth`` deep, of a closest-point walk over cells (the kd-tree's, the
+    octree's): the pending nodes, their distances, and their boxes."""
+    return thread_rows((rows, depth), np.int32), thread_rows((rows, depth)), thread_rows((rows, depth, 6))
+
+
+def _winding_stack(rows: int, depth: int) -> np.ndarray:
+    """The per-thread stack of the fast winding number's walk over a tree ``depth`` deep."""
+    return thread_rows((rows, 2 * depth + 4), np.int64)
 
 
 def any_dask(*values) -> bool:
@@ -158,8 +169,9 @@ class PointQueries:
         out = np.zeros(len(points))
         if len(points):
             box, first, count, geometry, moments, depth = self._winding_tree()
-            stack = thread_rows((numba.config.NUMBA_NUM_THREADS, 2 * depth + 4), np.int64)
-            fast_winding_kernel(self.scene.kind, geometry, box, first, count, moments, points, accuracy, stack, out)
+            with lent_rows(_winding_stack, numba.config.NUMBA_NUM_THREADS, depth) as stack:
+                fast_winding_kernel(self.scene.kind, geometry, box, first, count, moments, points, accuracy, stack,
+                                    out)
         return out
 
     def _winding_tree(self):

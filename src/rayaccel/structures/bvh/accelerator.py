@@ -94,8 +94,8 @@ def _packet_scratch(rows: int, depth: int) -> tuple:
 
 
 def _binary_walk_scratch(rows: int, depth: int) -> tuple[np.ndarray, np.ndarray]:
-    """The per-thread stacks of the binary walk (:mod:`.traverse`) of a tree ``depth`` deep: the
-    pending nodes and their entry distances."""
+    """The per-thread stacks of the binary walks (:mod:`.traverse`, :mod:`.nearest`) of a tree
+    ``depth`` deep: the pending nodes and their entry distances (squared distances for the nearest)."""
     return thread_rows((rows, depth + 2), np.int32), thread_rows((rows, depth + 2))
 
 
@@ -353,9 +353,9 @@ class BoundingVolumeHierarchy(Accelerator):
         """The walk by distance of :mod:`.nearest` over the binary tree."""
         b = self.bvh
         rows = numba.config.NUMBA_NUM_THREADS
-        bvh_nearest_kernel(b.node_box, b.node_first, b.node_count, b.prim_order, self.scene.kind, self.geometry,
-                           points, limit_d2, thread_rows((rows, self.max_depth + 2), np.int32),
-                           thread_rows((rows, self.max_depth + 2)), out_d2, out_prim)
+        with lent_rows(_binary_walk_scratch, rows, self.max_depth) as (stack_node, stack_d2):
+            bvh_nearest_kernel(b.node_box, b.node_first, b.node_count, b.prim_order, self.scene.kind, self.geometry,
+                               points, limit_d2, stack_node, stack_d2, out_d2, out_prim)
 
     def _winding_tree(self):
         """The fast winding number runs on this BVH's own binary tree (moments cached until a refit)."""

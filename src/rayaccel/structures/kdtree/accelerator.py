@@ -22,6 +22,7 @@ from ..bvh.accelerator import trace_wide
 from ..bvh.wide import WIDTH
 from ..grid.build_uniform import grid_box
 from ..large_primitives import large_primitives
+from ..point_queries import nearest_walk_scratch
 from .build_sah_binned import build_binned_top
 from .build_sah_events import build_subtrees
 from .layout import CHILD_SHIFT, LEAF, MAX_NODES, KdTreeArrays, node_cells
@@ -491,10 +492,9 @@ class KdTree(Accelerator):
         k = self.kd
         rows, depth = numba.config.NUMBA_NUM_THREADS, self.max_depth + 2
         pad = 1e-9 * float(np.abs(k.lo).max() + np.abs(k.hi).max() + (k.hi - k.lo).max())
-        kdtree_nearest_kernel(k.lo, k.hi, *k.walk_records, self.refs, self.apart_first, self.scene.kind,
-                              self.geometry, pad, points, limit_d2,
-                              thread_rows((rows, depth), np.int32), thread_rows((rows, depth)),
-                              thread_rows((rows, depth, 6)), out_d2, out_prim)
+        with lent_rows(nearest_walk_scratch, rows, depth) as stacks:
+            kdtree_nearest_kernel(k.lo, k.hi, *k.walk_records, self.refs, self.apart_first, self.scene.kind,
+                                  self.geometry, pad, points, limit_d2, *stacks, out_d2, out_prim)
 
     @property
     def nbytes(self) -> int:

@@ -14,6 +14,7 @@ from ...stats import box_area, surface_area_stats
 from ..actions import NEAREST
 from ..base import Accelerator, walk_rays
 from ..grid.build_uniform import grid_box
+from ..point_queries import nearest_walk_scratch
 from .build_adaptive import build_octree
 from .layout import OctreeArrays
 from .nearest import octree_nearest_kernel
@@ -88,9 +89,9 @@ class Octree(Accelerator):
         o = self.tree
         rows, depth = numba.config.NUMBA_NUM_THREADS, 7 * self.max_depth + 9
         pad = 1e-9 * float(np.abs(o.lo).max() + np.abs(o.hi).max() + (o.hi - o.lo).max())
-        octree_nearest_kernel(o.lo, o.hi, o.node_center, o.node_link, o.leaf_prims, self.scene.kind,
-                              self.scene.geometry, pad, points, limit_d2, thread_rows((rows, depth), np.int32),
-                              thread_rows((rows, depth)), thread_rows((rows, depth, 6)), out_d2, out_prim)
+        with lent_rows(nearest_walk_scratch, rows, depth) as stacks:
+            octree_nearest_kernel(o.lo, o.hi, o.node_center, o.node_link, o.leaf_prims, self.scene.kind,
+                                  self.scene.geometry, pad, points, limit_d2, *stacks, out_d2, out_prim)
 
     def node_cells(self) -> np.ndarray:
         """(n_nodes, 6) cell of every node, lo and hi."""
