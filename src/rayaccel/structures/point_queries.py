@@ -35,18 +35,18 @@ from .ray_winding import ray_winding_number
 __all__ = ["PointQueries", "any_dask", "nearest_walk_scratch"]
 
 
-_NOT_DASK = frozenset((np.ndarray, float, int))
-
-
 def nearest_walk_scratch(rows: int, depth: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The per-thread stacks, ``depth`` deep, of a closest-point walk over cells (the kd-tree's, the
     octree's): the pending nodes, their distances, and their boxes."""
     return thread_rows((rows, depth), np.int32), thread_rows((rows, depth)), thread_rows((rows, depth, 6))
 
 
-def _winding_stack(rows: int, depth: int) -> np.ndarray:
+def _winding_stack(rows: int, depth: int) -> tuple[np.ndarray]:
     """The per-thread stack of the fast winding number's walk over a tree ``depth`` deep."""
-    return thread_rows((rows, 2 * depth + 4), np.int64)
+    return (thread_rows((rows, 2 * depth + 4), np.int64),)
+
+
+_NOT_DASK = frozenset((np.ndarray, float, int))
 
 
 def any_dask(*values) -> bool:
@@ -169,7 +169,7 @@ class PointQueries:
         out = np.zeros(len(points))
         if len(points):
             box, first, count, geometry, moments, depth = self._winding_tree()
-            with lent_rows(_winding_stack, numba.config.NUMBA_NUM_THREADS, depth) as stack:
+            with lent_rows(_winding_stack, numba.config.NUMBA_NUM_THREADS, depth) as (stack,):
                 fast_winding_kernel(self.scene.kind, geometry, box, first, count, moments, points, accuracy, stack,
                                     out)
         return out

@@ -141,6 +141,7 @@ def _tree_depth(kd: KdTreeArrays) -> int:
         level = np.concatenate((links[parents], links[parents] + 1))
         depth += 1
 
+
 def _stacks(rows: int, depth: int) -> tuple[np.ndarray, np.ndarray]:
     """``rows`` stacks for a tree ``depth`` deep: the pending cells' nodes and their intervals."""
     return thread_rows((rows, depth + 2), np.int32), thread_rows((rows, depth + 2, 2))
