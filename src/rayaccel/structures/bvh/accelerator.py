@@ -93,6 +93,13 @@ def _packet_scratch(rows: int, depth: int) -> tuple:
             thread_rows((rows, PACKET), np.int64))
 
 
+def _interleaved_scratch(rows: int, depth: int) -> tuple:
+    """The per-thread scratch of the eight-wide walk with :data:`SLOTS` rays in flight
+    (:mod:`.traverse_interleaved`): a stack per ray in flight, the child entry rows, the rays' slots."""
+    return (*wide_stacks(rows * SLOTS, depth), child_entry_rows(rows), thread_rows((rows, SLOTS, SLOT_INTS), np.int64),
+            thread_rows((rows, SLOTS, SLOT_FLOATS)))
+
+
 def _binary_walk_scratch(rows: int, depth: int) -> tuple[np.ndarray, np.ndarray]:
     """The per-thread stacks of the binary walks (:mod:`.traverse`, :mod:`.nearest`) of a tree
     ``depth`` deep: the pending nodes and their entry distances (squared distances for the nearest)."""
@@ -130,9 +137,9 @@ def trace_wide(records, root_record, prim_order, kind, geometry, depth, batch, a
         return in_packets(_LANE_PACKET_WALKS.get(action.mode, lane_packet_crossings_kernel), batch)
     if interleave and interleaving_pays(batch, *scene_box, nbytes, sampled, caches=_INTERLEAVE_CACHES):
         walk = _INTERLEAVED_WALKS.get(action.mode, interleaved_crossings_kernel)
-        return walk_rays(walk, n_rays, root_record, *tree, *batch, any_hit, *wide_stacks(rows * SLOTS, depth),
-                         child_entry_rows(rows), SLOTS, thread_rows((rows, SLOTS, SLOT_INTS), np.int64),
-                         thread_rows((rows, SLOTS, SLOT_FLOATS)), action, work)
+        with lent_rows(_interleaved_scratch, rows, depth) as (*stacks, entry, slot_ints, slot_floats):
+            return walk_rays(walk, n_rays, root_record, *tree, *batch, any_hit, *stacks, entry, SLOTS, slot_ints,
+                             slot_floats, action, work)
     walk = _WIDE_WALKS.get(action.mode, wide_crossings_kernel)
     with lent_rows(single_walk_scratch, rows, depth) as scratch:
         return walk_rays(walk, n_rays, root_record, *tree, *batch, any_hit, *scratch, action, work)

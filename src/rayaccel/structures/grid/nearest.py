@@ -26,7 +26,7 @@ import numba
 import numpy as np
 from numba import prange
 
-from ..._jit import inline_kernel, kernel, parallel_kernel, thread_id, thread_rows
+from ..._jit import inline_kernel, kernel, lent_rows, parallel_kernel, thread_id, thread_rows
 from ..bvh.nearest import bvh_nearest
 from ..point_actions import box_distance2, nearest_in_refs
 
@@ -149,6 +149,13 @@ def grid_nearest_kernel(lo, res, cell_size, cell_first, cell_prims, cell_root, n
                                              points[i, 1], points[i, 2], limit_d2[i], stack_node, stack_d2, grid_stack,
                                              thread_id())
 
+def _nearest_scratch(rows: int, bvh_depth: int, nested_grids: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The per-thread scratch of :func:`grid_nearest_kernel`: a stack for the cells' BVHs ``bvh_depth``
+    deep (nodes and squared distances), and a row over the nested grids."""
+    return (thread_rows((rows, bvh_depth + 2), np.int32), thread_rows((rows, bvh_depth + 2)),
+            thread_rows((rows, nested_grids + 1), np.int64))
+
+
 def grid_nearest(lo, hi, res, cell_size, cell_first, cell_prims, kind, geom, points, limit_d2, out_d2, out_prim, *,
                  cell_root=None, forest=None, bvh_depth=0, nested=None, in_leaf_order=False) -> None:
     """Run :func:`grid_nearest_kernel`; ``cell_root`` and ``forest`` (node_box, node_first, node_count)
@@ -163,7 +170,6 @@ def grid_nearest(lo, hi, res, cell_size, cell_first, cell_prims, kind, geom, poi
         nested = (np.zeros(0, dtype=np.int32), np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64), np.zeros((0, 3)),
                   np.zeros(0, dtype=np.int64))
     pad = 1e-9 * float(np.abs(lo).max() + np.abs(hi).max() + (hi - lo).max())
-    grid_nearest_kernel(lo, res, cell_size, cell_first, cell_prims, cell_root, *forest, *nested, kind, geom,
-                        in_leaf_order, pad, points, limit_d2, thread_rows((rows, bvh_depth + 2), np.int32),
-                        thread_rows((rows, bvh_depth + 2)), thread_rows((rows, len(nested[1]) + 1), np.int64),
-                        out_d2, out_prim)
+    with lent_rows(_nearest_scratch, rows, bvh_depth, len(nested[1])) as scratch:
+        grid_nearest_kernel(lo, res, cell_size, cell_first, cell_prims, cell_root, *forest, *nested, kind, geom,
+                            in_leaf_order, pad, points, limit_d2, *scratch, out_d2, out_prim)

@@ -23,7 +23,7 @@ import numba
 import numpy as np
 from numba import prange
 
-from ..._jit import inline_kernel, kernel, parallel_kernel, thread_id, thread_rows
+from ..._jit import inline_kernel, kernel, lent_rows, parallel_kernel, thread_id, thread_rows
 
 __all__ = ["instance_candidates", "object_rays", "merge_hits"]
 
@@ -105,20 +105,25 @@ def _sort_by_entry(instance, entry, first, end):
         instance[b + 1] = key_instance
 
 
+def _walk_stack(rows: int, max_depth: int) -> tuple[np.ndarray]:
+    """The per-thread stack of :func:`_walk` over a top tree ``max_depth`` deep."""
+    return (thread_rows((rows, max_depth + 2), np.int64),)
+
+
 def instance_candidates(top, max_depth, origins, directions, t_min, t_max):
     """``(offsets, instance, entry, nodes_visited)``: ray ``i`` enters the boxes of the
     instances ``instance[offsets[i]:offsets[i + 1]]`` at ``entry[...]``, nearest first;
     ``top`` is ``(node_box, node_first, node_count, prim_order)``."""
     n = len(origins)
-    stack = thread_rows((numba.config.NUMBA_NUM_THREADS, max_depth + 2), np.int64)
     offsets = np.zeros(n + 1, dtype=np.int64)
     nodes_visited = np.zeros(n, dtype=np.int64)
     empty_i, empty_f = np.zeros(0, np.int64), np.zeros(0)
-    _walk(*top, origins, directions, t_min, t_max, stack, offsets, False, empty_i, empty_f, nodes_visited)
-    np.cumsum(offsets, out=offsets)
-    instance = np.empty(offsets[-1], dtype=np.int64)
-    entry = np.empty(offsets[-1])
-    _walk(*top, origins, directions, t_min, t_max, stack, offsets, True, instance, entry, nodes_visited)
+    with lent_rows(_walk_stack, numba.config.NUMBA_NUM_THREADS, max_depth) as (stack,):
+        _walk(*top, origins, directions, t_min, t_max, stack, offsets, False, empty_i, empty_f, nodes_visited)
+        np.cumsum(offsets, out=offsets)
+        instance = np.empty(offsets[-1], dtype=np.int64)
+        entry = np.empty(offsets[-1])
+        _walk(*top, origins, directions, t_min, t_max, stack, offsets, True, instance, entry, nodes_visited)
     return offsets, instance, entry, nodes_visited
 
 
