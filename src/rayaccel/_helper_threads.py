@@ -6,8 +6,8 @@ passes. Linux chooses the CPU of a thread it wakes, and it often chose the calle
 busy with the caller's share: the two threads then took turns on one CPU while the other stood
 idle, until the scheduler's balancing moved one of them, a millisecond or more later or not within
 the pass at all. A pass's threads then read the CPU each sat on (``sched_getcpu``) at the start and
-end of every chunk: on 9 of 12 calls both had run on the same CPU, and those took 5.6-7.4 ms
-against 3.7-4.2 (forest-small-chair, 1024^2 camera rays, any hit, two threads, each call after a
+end of every chunk: on 10 of 12 calls both had run on the same CPU, and those took 5.6-7.4 ms
+against 3.8 and 4.2 (forest-small-chair, 1024^2 camera rays, any hit, two threads, each call after a
 pause of 50 ms and one call untimed, as the benchmark times them; Intel Xeon with two vCPUs,
 2026-12-07); each thread's own CPU time was the same, 2.8-3.9 ms, in both kinds of call.
 

@@ -6,7 +6,7 @@ import functools
 
 import numpy as np
 
-from .._jit import inline_kernel, share_among_threads, thread_count
+from .._jit import inline_kernel, share_among_threads, thread_count, thread_rows
 from .._validate import as_positive_int, check_ray_arrays
 from ..geometry.sphere import sphere_hit_coords
 from ..ray_order import coherent_batch, sorting_pays
@@ -29,7 +29,7 @@ from .large_primitives import LargePrimitives, large_primitives, unsettled_rays
 from .point_queries import PointQueries, any_dask
 
 __all__ = ["Accelerator", "is_closer", "intersect_references", "store_hit", "settled_before", "walk_rays",
-           "EXIT_MARGIN", "RAY_CHUNK", "CHUNKS_PER_THREAD"]
+           "interval_stacks", "EXIT_MARGIN", "RAY_CHUNK", "CHUNKS_PER_THREAD"]
 
 # Relative margin by which a hit must lie before a cell's exit for the walk to stop there.
 EXIT_MARGIN = 1e-9
@@ -80,6 +80,13 @@ def walk_rays(walk, n_rays: int, *args, align: int = 1) -> int:
     found = []
     share_among_threads(lambda first, end, tid: found.append(walk(first, end, tid, *args)), n_rays, chunk)
     return sum(count for count in found if count is not None)
+
+
+def interval_stacks(rows: int, size: int) -> tuple[np.ndarray, np.ndarray]:
+    """``rows`` per-thread stacks of ``size`` entries for the walks over cells that keep each pending
+    node with its interval along the ray (the kd-tree's binary walks, the octree's): the nodes, and
+    their ``(t_enter, t_exit)``."""
+    return thread_rows((rows, size), np.int32), thread_rows((rows, size, 2))
 
 
 class Accelerator(PointQueries):

@@ -51,7 +51,7 @@ _NOT_DASK = frozenset((np.ndarray, float, int))
 
 def any_dask(*values) -> bool:
     """Whether any value is a Dask collection, decided without importing Dask (NumPy arrays and
-    Python numbers at a glance: 0.2 against 1.0 us for a query's four inputs)."""
+    Python numbers at a glance: 0.4 against 0.8 us for a query's four inputs, in a loop)."""
     return any(type(value) not in _NOT_DASK and type(value).__module__.partition(".")[0] == "dask"
                for value in values)
 

@@ -17,7 +17,7 @@ from ...ray_order import MIN_PACKET_RAYS, interleaving_pays, lane_packets_pay, p
 from ...ray_tiles import image_row_length
 from ...stats import box_area, surface_area_stats
 from ..actions import NEAREST
-from ..base import Accelerator, walk_rays
+from ..base import Accelerator, interval_stacks, walk_rays
 from ..bvh.accelerator import trace_wide
 from ..bvh.wide import WIDTH
 from ..grid.build_uniform import grid_box
@@ -142,14 +142,9 @@ def _tree_depth(kd: KdTreeArrays) -> int:
         depth += 1
 
 
-def _stacks(rows: int, depth: int) -> tuple[np.ndarray, np.ndarray]:
-    """``rows`` stacks for a tree ``depth`` deep: the pending cells' nodes and their intervals."""
-    return thread_rows((rows, depth + 2), np.int32), thread_rows((rows, depth + 2, 2))
-
-
 def _single_scratch(rows: int, depth: int) -> tuple[np.ndarray, ...]:
     """The per-thread scratch of the binary walk of one ray at a time: its stacks and the ray's row."""
-    return (*_stacks(rows, depth), thread_rows((rows, RAY_ROW)))
+    return (*interval_stacks(rows, depth + 2), thread_rows((rows, RAY_ROW)))
 
 
 def _packet_scratch(rows: int, depth: int) -> tuple[np.ndarray, ...]:
@@ -162,7 +157,7 @@ def _packet_scratch(rows: int, depth: int) -> tuple[np.ndarray, ...]:
 def _interleaved_scratch(rows: int, depth: int) -> tuple[np.ndarray, ...]:
     """The per-thread scratch of the walk with :data:`SLOTS` rays in flight: a stack per ray in
     flight, then the rays' slots."""
-    return (*_stacks(rows * SLOTS, depth), thread_rows((rows, SLOTS, SLOT_INTS), np.int64),
+    return (*interval_stacks(rows * SLOTS, depth + 2), thread_rows((rows, SLOTS, SLOT_INTS), np.int64),
             thread_rows((rows, SLOTS, SLOT_FLOATS)))
 
 

@@ -8,11 +8,11 @@ import time
 import numba
 import numpy as np
 
-from ..._jit import lent_rows, thread_rows
+from ..._jit import lent_rows
 from ..._validate import check_number
 from ...stats import box_area, surface_area_stats
 from ..actions import NEAREST
-from ..base import Accelerator, walk_rays
+from ..base import Accelerator, interval_stacks, walk_rays
 from ..grid.build_uniform import grid_box
 from ..point_queries import nearest_walk_scratch
 from .build_adaptive import build_octree
@@ -25,12 +25,6 @@ __all__ = ["Octree"]
 _INSERT_MODES = ("bbox", "exact")
 _PAD = 1e-9  # octant boxes are grown by this fraction of their size when inserting
 _COORDINATE_PAD = 1e-11  # and by this fraction of the largest coordinate of the root cell
-
-
-def _walk_scratch(rows: int, depth: int) -> tuple[np.ndarray, np.ndarray]:
-    """The walk's per-thread stacks for a tree ``depth`` deep: the pending nodes and their intervals."""
-    size = 3 * depth + 4
-    return thread_rows((rows, size), np.int32), thread_rows((rows, size, 2))
 
 
 class Octree(Accelerator):
@@ -78,7 +72,7 @@ class Octree(Accelerator):
     def _trace(self, batch, any_hit, action, work):
         o = self.tree
         rows = numba.config.NUMBA_NUM_THREADS
-        scratch = lent_rows(_walk_scratch, rows, self.max_depth)
+        scratch = lent_rows(interval_stacks, rows, 3 * self.max_depth + 4)
         with self._mailboxes_for(action).lend(batch.size) as (mailbox, base), scratch as (stack_node, stack_t):
             walk = octree_closest_kernel if action.mode == NEAREST else octree_crossings_kernel
             walk_rays(walk, batch.size, o.lo, o.hi, o.node_center, o.node_link, o.leaf_prims, self.scene.kind,
