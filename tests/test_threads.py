@@ -14,6 +14,7 @@ import rayaccel as ra
 from rayaccel._helper_threads import HelperThreads
 from rayaccel._jit import (
     chunk_count,
+    helper_wake_seconds,
     lent_rows,
     on_threads,
     set_threads,
@@ -21,6 +22,7 @@ from rayaccel._jit import (
     thread_count,
     thread_rows,
 )
+from rayaccel.structures import base
 
 
 @pytest.fixture
@@ -63,6 +65,50 @@ def test_the_calling_thread_takes_chunks_too(two_threads):
     share_among_threads(run, 64, 4)
     assert len(takers) == 16
     assert threading.get_ident() in takers
+
+
+def _recording_walk(seconds_a_ray: float):
+    """A stand-in for a ray walk that records its chunks ``(first, end, tid)``, sleeps
+    ``seconds_a_ray`` for each of their rays and returns 1 a chunk."""
+    chunks = []
+
+    def walk(first, end, tid, payload):
+        assert payload == "payload"
+        chunks.append((first, end, tid))
+        if seconds_a_ray:
+            time.sleep(seconds_a_ray * (end - first))
+        return 1
+
+    return walk, chunks
+
+
+def _every_ray_once_on_aligned_chunks(chunks, n, align):
+    seen = np.zeros(n, dtype=np.int64)
+    for first, end, _ in chunks:
+        assert first % align == 0 and (end % align == 0 or end == n)
+        seen[first:end] += 1
+    return bool((seen == 1).all())
+
+
+def test_a_small_batch_of_cheap_rays_stays_on_the_calling_thread(two_threads):
+    """Rays so cheap that waking a helper would cost more than it saves are walked by the caller,
+    in growing chunks that start on multiples of ``align``."""
+    walk, chunks = _recording_walk(0.0)
+    found = base.walk_rays(walk, 50_000, "payload", align=64)
+    assert _every_ray_once_on_aligned_chunks(chunks, 50_000, 64)
+    assert {tid for _, _, tid in chunks} == {0}
+    assert chunks[0][:2] == (0, base.FIRST_CHUNK) and found == len(chunks) < 8
+
+
+def test_a_small_batch_of_dear_rays_is_shared_with_the_helpers(two_threads):
+    """Once the first chunk shows that the rays left would keep the caller busy for many wakes
+    of a helper, the helpers share them; what each chunk returns is summed."""
+    assert 0.0 < helper_wake_seconds() < 0.1
+    walk, chunks = _recording_walk(1e-6)
+    found = base.walk_rays(walk, 16_384, "payload", align=64)
+    assert _every_ray_once_on_aligned_chunks(chunks, 16_384, 64)
+    assert chunks[0][:2] == (0, base.FIRST_CHUNK) and found == len(chunks)
+    assert {tid for _, _, tid in chunks} == {0, 1}
 
 
 def test_on_threads_returns_each_chunk_result_in_order(two_threads):

@@ -28,14 +28,22 @@ use one CPU only, the threads run wherever the system puts them.
 
 from __future__ import annotations
 
+import collections
 import ctypes
 import os
+import statistics
 import threading
+import time
 from concurrent.futures import Future, ThreadPoolExecutor
 
 __all__ = ["HelperThreads"]
 
 _START_TIMEOUT = 10.0
+_WAKES_KEPT = 15
+"""Latest helper start latencies :meth:`HelperThreads.wake_seconds` takes the median of."""
+_FIRST_WAKES = 5
+"""Empty tasks the pool hands its helpers when it starts, to measure their start latency before
+any pass does."""
 
 
 def _cpu_reader():
@@ -52,6 +60,10 @@ def _cpu_reader():
     return reader
 
 
+def _nothing(_row) -> None:
+    """An empty task."""
+
+
 class HelperThreads:
     """``size`` helper threads, all started at once so that each one's thread id is known before
     the first pass wakes it; :meth:`submit` hands one a share between :meth:`begin_pass`, which
@@ -64,6 +76,9 @@ class HelperThreads:
         self._helpers_on = None
         self._passes = 0
         self._lock = threading.Lock()
+        self._wakes = collections.deque(maxlen=_WAKES_KEPT)
+        for _ in range(_FIRST_WAKES):
+            self.submit(_nothing, 0).result()
 
     def _start(self, size: int) -> list[int]:
         """Start every helper (each waits at a barrier until all run, so that the pool makes
@@ -113,4 +128,16 @@ class HelperThreads:
             os.sched_setaffinity(0, caller_cpus)
 
     def submit(self, work, row) -> Future:
-        return self._executor.submit(work, row)
+        """``work(row)`` on a helper, the time it took the helper to begin it kept for
+        :meth:`wake_seconds`."""
+        return self._executor.submit(self._begin, time.perf_counter(), work, row)
+
+    def _begin(self, submitted: float, work, row):
+        self._wakes.append(time.perf_counter() - submitted)
+        return work(row)
+
+    def wake_seconds(self) -> float:
+        """The median time from :meth:`submit` to a helper beginning its work, over the latest
+        :data:`_WAKES_KEPT` submissions: the latency of waking a sleeping thread, which a pass pays
+        about twice (the helper's start, then the caller's when the helper ends last)."""
+        return statistics.median(self._wakes)

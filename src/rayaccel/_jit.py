@@ -55,8 +55,8 @@ from ._cache_key import KernelCache
 from ._helper_threads import HelperThreads
 
 __all__ = ["kernel", "inline_kernel", "chunk_kernel", "parallel_kernel", "chunk_count", "on_threads",
-           "share_among_threads", "set_threads", "thread_count", "max_threads", "thread_id", "thread_rows", "lent_rows",
-           "prefetch", "emit_prefetch", "unsigned"]
+           "share_among_threads", "helper_wake_seconds", "set_threads", "thread_count", "max_threads", "thread_id",
+           "thread_rows", "lent_rows", "prefetch", "emit_prefetch", "unsigned"]
 
 _COMMON = dict(nogil=True, error_model="numpy", fastmath=False)
 
@@ -471,6 +471,12 @@ def _with_helpers(work, threads: int) -> list:
         wait(helpers)
         pool.end_pass(caller_cpus)
     return [mine] + [helper.result() for helper in helpers]
+
+
+def helper_wake_seconds() -> float:
+    """How long a sleeping helper of the pool takes to begin the work handed to it, as this
+    machine's recent passes measured it (:meth:`.HelperThreads.wake_seconds`)."""
+    return _thread_pool().wake_seconds()
 
 
 def set_threads(n: int) -> None:
