@@ -51,12 +51,15 @@ def test_batches_that_are_not_images_are_walked_as_given(spheres):
 def test_an_image_with_rays_left_out_is_not_taken_for_one(spheres):
     """A camera's rays with a patch in the middle of the image left out (those that meet an object,
     say) keep their first rows whole, but their later rows no longer start where the first row's
-    length says: tiles there would pair rays from far apart. Whole rows left out keep an image."""
+    length says: tiles there would pair rays from far apart. Whole rows left out keep an image, unless
+    an odd number of rows before the gap pairs a row above it with one below it in a tile."""
     directions = image_rays(spheres, 64, 48)[1].reshape(48, 64, 3)
     patch = np.zeros((48, 64), dtype=bool)
     patch[20:30, 24:40] = True
     assert image_row_length(directions[~patch]) == 0
     assert image_row_length(directions[np.r_[0:20, 30:48]].reshape(-1, 3)) == 64
+    assert image_row_length(directions[np.r_[0:21, 30:48]].reshape(-1, 3)) == 0
+    assert image_row_length(directions[np.r_[0:1, 9:48]].reshape(-1, 3)) == 0
 
 
 @pytest.mark.parametrize("row_length", [8, 32, 1024])
