@@ -90,9 +90,10 @@ def _every_ray_once_on_aligned_chunks(chunks, n, align):
     return bool((seen == 1).all())
 
 
-def test_a_small_batch_of_cheap_rays_stays_on_the_calling_thread(two_threads):
-    """Rays so cheap that waking a helper would cost more than it saves are walked by the caller,
-    in growing chunks that start on multiples of ``align``."""
+def test_a_small_batch_of_cheap_rays_stays_on_the_calling_thread(two_threads, monkeypatch):
+    """Rays that would take the caller less time than waking a helper costs (a wake of a second
+    here) are walked by the caller, in growing chunks that start on multiples of ``align``."""
+    monkeypatch.setattr(base, "helper_wake_seconds", lambda: 1.0)
     walk, chunks = _recording_walk(0.0)
     found = base.walk_rays(walk, 50_000, "payload", align=64)
     assert _every_ray_once_on_aligned_chunks(chunks, 50_000, 64)
@@ -100,10 +101,11 @@ def test_a_small_batch_of_cheap_rays_stays_on_the_calling_thread(two_threads):
     assert chunks[0][:2] == (0, base.FIRST_CHUNK) and found == len(chunks) < 8
 
 
-def test_a_small_batch_of_dear_rays_is_shared_with_the_helpers(two_threads):
+def test_a_small_batch_of_dear_rays_is_shared_with_the_helpers(two_threads, monkeypatch):
     """Once the first chunk shows that the rays left would keep the caller busy for many wakes
-    of a helper, the helpers share them; what each chunk returns is summed."""
+    of a helper (a microsecond here), the helpers share them; what each chunk returns is summed."""
     assert 0.0 < helper_wake_seconds() < 0.1
+    monkeypatch.setattr(base, "helper_wake_seconds", lambda: 1e-6)
     walk, chunks = _recording_walk(1e-6)
     found = base.walk_rays(walk, 16_384, "payload", align=64)
     assert _every_ray_once_on_aligned_chunks(chunks, 16_384, 64)
