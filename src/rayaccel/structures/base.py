@@ -30,8 +30,8 @@ from .large_primitives import LargePrimitives, large_primitives, unsettled_rays
 from .point_queries import PointQueries, any_dask
 
 __all__ = ["Accelerator", "is_closer", "intersect_references", "store_hit", "settled_before", "walk_rays",
-           "interval_stacks", "EXIT_MARGIN", "RAY_CHUNK", "CHUNKS_PER_THREAD",
-           "ALONE_FIRST_BELOW"]
+           "interval_stacks", "EXIT_MARGIN", "RAY_CHUNK", "CHUNKS_PER_THREAD", "ALONE_FIRST_BELOW", "FIRST_CHUNK",
+           "HELPERS_FROM_WAKES", "CHUNK_WAKES"]
 
 # Relative margin by which a hit must lie before a cell's exit for the walk to stop there.
 EXIT_MARGIN = 1e-9
