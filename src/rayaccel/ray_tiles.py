@@ -51,11 +51,11 @@ _SAMPLED_TILES = 64
 
 
 @inline_kernel
-def _squared_step(directions, i):
-    """The squared distance from direction ``i`` to direction ``i + 1``."""
+def _squared_step(directions, i, apart=1):
+    """The squared distance from direction ``i`` to direction ``i + apart``."""
     step = 0.0
     for axis in range(3):
-        step += (np.float64(directions[i + 1, axis]) - np.float64(directions[i, axis])) ** 2
+        step += (np.float64(directions[i + apart, axis]) - np.float64(directions[i, axis])) ** 2
     return step
 
 
@@ -96,10 +96,7 @@ def _row_pairs_alike(directions, width, jump):
     somewhere pairs two rows from either side of the gap, whose tiles would span it."""
     before = 0.0
     for pair in range(directions.shape[0] // (TILE_ROWS * width)):
-        i = pair * TILE_ROWS * width
-        step = 0.0
-        for axis in range(3):
-            step += (np.float64(directions[i + width, axis]) - np.float64(directions[i, axis])) ** 2
+        step = _squared_step(directions, pair * TILE_ROWS * width, width)
         if pair > 0 and (step > jump * jump * before or before > jump * jump * step):
             return False
         before = step

@@ -97,41 +97,48 @@ def walk_rays(walk, n_rays: int, *args, align: int = 1) -> int:
     threads = thread_count()
     first, found = 0, 0
     if n_rays < ALONE_FIRST_BELOW and threads > 1:
-        first, found, seconds_a_ray = _walk_while_alone_pays(walk, n_rays, args, align)
+        wake = helper_wake_seconds()
+        first, found, seconds_a_ray = _walk_while_alone_pays(walk, n_rays, args, align, wake)
         if first == n_rays:
             return found
-        chunk = _shared_chunk(n_rays - first, seconds_a_ray, threads, align)
+        chunk = _shared_chunk(n_rays - first, seconds_a_ray, wake, threads, align)
     else:
-        chunk = -(-max(RAY_CHUNK, -(-n_rays // (CHUNKS_PER_THREAD * threads))) // align) * align
+        chunk = -(-_even_chunk(n_rays, threads) // align) * align
     counts = []
     share_among_threads(lambda a, b, tid: counts.append(walk(first + a, first + b, tid, *args)), n_rays - first,
                         chunk)
     return found + sum(count for count in counts if count is not None)
 
 
-def _shared_chunk(rays: int, seconds_a_ray: float, threads: int, align: int) -> int:
+def _even_chunk(rays: int, threads: int) -> int:
+    """Rays a chunk of ``rays`` shared among ``threads`` takes: about :data:`CHUNKS_PER_THREAD` a
+    thread, :data:`RAY_CHUNK` at least."""
+    return max(RAY_CHUNK, -(-rays // (CHUNKS_PER_THREAD * threads)))
+
+
+def _shared_chunk(rays: int, seconds_a_ray: float, wake: float, threads: int, align: int) -> int:
     """The chunk length for the ``rays`` left of a batch that :func:`_walk_while_alone_pays` hands to
-    the helpers: as a large batch's, but at least :data:`CHUNK_WAKES` wakes of a helper long at
-    ``seconds_a_ray``, and at most a thread's share, so that every thread gets a chunk; a multiple of
-    ``align``."""
-    least = int(CHUNK_WAKES * helper_wake_seconds() / seconds_a_ray)
-    chunk = max(RAY_CHUNK, rays // (CHUNKS_PER_THREAD * threads), least)
+    the helpers: as a large batch's, but at least :data:`CHUNK_WAKES` helper wakes (``wake`` seconds
+    each) long at ``seconds_a_ray``, and at most a thread's share, so that every thread gets a chunk;
+    a multiple of ``align``."""
+    chunk = max(_even_chunk(rays, threads), int(CHUNK_WAKES * wake / seconds_a_ray))
     return max(align, min(chunk, rays // threads) // align * align)
 
 
-def _walk_while_alone_pays(walk, n_rays: int, args: tuple, align: int) -> tuple[int, int, float]:
+def _walk_while_alone_pays(walk, n_rays: int, args: tuple, align: int, wake: float) -> tuple[int, int, float]:
     """Walk the first rays of a batch on the calling thread, in chunks of :data:`FIRST_CHUNK` rays,
     then of three times the rays walked so far (multiples of ``align``), until the rays left would
     keep it busy alone for more than :data:`HELPERS_FROM_WAKES` start latencies of a helper
-    (:func:`rayaccel._jit.helper_wake_seconds`), as the last chunk's time a ray foretells them, or
-    none is left. Returns the rays walked, the total of what the walk returned and the last chunk's
-    seconds a ray.
+    (``wake`` seconds each, :func:`rayaccel._jit.helper_wake_seconds`), as the last chunk's time a
+    ray foretells them, or none is left. Returns the rays walked, the total of what the walk
+    returned and the last chunk's seconds a ray.
 
     A threaded pass pays about two wakes of a sleeping thread (the helper's at its start, the
-    caller's when a helper ends last) and the GIL's hand-overs between chunks, and on the two-vCPU
-    virtual machine this was measured on a wake takes 50-70 us: the forest's 4,096 middle camera
-    rays took 301 us a call for an any hit on two threads and 137 us on one (2026-12-07). Rays that
-    grow dearer along a batch (rows of sky above a model) call the helpers once a chunk shows it.
+    caller's when a helper ends last) and the GIL's hand-overs between chunks; the pool's median
+    wake measured 55-70 us on the two-vCPU virtual machine this was written on, where the forest's
+    4,096 middle camera rays took 301 us a call for an any hit on two threads and 137 us on one
+    (2026-12-07). Rays that grow dearer along a batch (rows of sky above a model) call the helpers
+    once a chunk shows it.
     Against every batch of more than :data:`RAY_CHUNK` rays threaded at once (time over time before;
     two threads, loops of distinct batches, medians of 9 rounds alternating in one process, batches
     of 2,048 / 4,096 / 8,192 rays, 2026-12-07): forest camera rays any hit 0.45 / 0.51 / 0.70,
@@ -139,7 +146,6 @@ def _walk_while_alone_pays(walk, n_rays: int, args: tuple, align: int) -> tuple[
     camera rays 0.79 / 0.95 / 1.06 and 0.83 / 1.02 / 1.09, incoherent 1.10 / 1.05 / 1.04 and
     1.14 / 1.01 / 1.02: the first chunk delays the helpers of a batch of dear rays, which a batch of
     2,048 pays most."""
-    wake = helper_wake_seconds()
     first, found = 0, 0
     end = -(-FIRST_CHUNK // align) * align
     while True:

@@ -23,7 +23,7 @@ from .build_top_down import MORTON, OBJECT_MEDIAN, SAH_BINNED, SAH_SWEEP, SPATIA
 from .fast_winding import winding_moments
 from .lane_slab import LANE_SLAB_ROWS
 from .layout import BvhArrays, node_rows, pack_nodes
-from .nearest import bvh_nearest_kernel
+from .nearest import binary_walk_stacks, bvh_nearest_kernel
 from .nodes import box_surface_areas, grow_by_rounding_margin, node_depths, sah_cost
 from .packet_slab import BOUND_VALUES, PACKET
 from .refit import refit_bvh, refit_geometry_boxes
@@ -98,12 +98,6 @@ def _interleaved_scratch(rows: int, depth: int) -> tuple:
     (:mod:`.traverse_interleaved`): a stack per ray in flight, the child entry rows, the rays' slots."""
     return (*wide_stacks(rows * SLOTS, depth), child_entry_rows(rows), thread_rows((rows, SLOTS, SLOT_INTS), np.int64),
             thread_rows((rows, SLOTS, SLOT_FLOATS)))
-
-
-def _binary_walk_scratch(rows: int, depth: int) -> tuple[np.ndarray, np.ndarray]:
-    """The per-thread stacks of the binary walks (:mod:`.traverse`, :mod:`.nearest`) of a tree
-    ``depth`` deep: the pending nodes and their entry distances (squared distances for the nearest)."""
-    return thread_rows((rows, depth + 2), np.int32), thread_rows((rows, depth + 2))
 
 
 def trace_wide(records, root_record, prim_order, kind, geometry, depth, batch, any_hit, action, work, *, packets,
@@ -346,7 +340,7 @@ class BoundingVolumeHierarchy(Accelerator):
         if self.wide is None:
             b = self.bvh
             walk = bvh_closest_kernel if action.mode == NEAREST else bvh_crossings_kernel
-            with lent_rows(_binary_walk_scratch, rows, self.max_depth) as (stack_node, stack_t):
+            with lent_rows(binary_walk_stacks, rows, self.max_depth) as (stack_node, stack_t):
                 walk_rays(walk, batch.size, self.bounds_kind, b.node_records, self._volume_rows,
                           b.node_records.view(np.int32), b.prim_order, self.scene.kind, self.geometry, KDOP_NORMALS,
                           *batch, any_hit, stack_node, stack_t, action, work)
@@ -360,7 +354,7 @@ class BoundingVolumeHierarchy(Accelerator):
         """The walk by distance of :mod:`.nearest` over the binary tree."""
         b = self.bvh
         rows = numba.config.NUMBA_NUM_THREADS
-        with lent_rows(_binary_walk_scratch, rows, self.max_depth) as (stack_node, stack_d2):
+        with lent_rows(binary_walk_stacks, rows, self.max_depth) as (stack_node, stack_d2):
             bvh_nearest_kernel(b.node_box, b.node_first, b.node_count, b.prim_order, self.scene.kind, self.geometry,
                                points, limit_d2, stack_node, stack_d2, out_d2, out_prim)
 

@@ -15,12 +15,20 @@ its dense cells with the same function.
 
 from __future__ import annotations
 
+import numpy as np
 from numba import prange
 
-from ..._jit import inline_kernel, kernel, parallel_kernel, thread_id
+from ..._jit import inline_kernel, kernel, parallel_kernel, thread_id, thread_rows
 from ..point_actions import box_distance2, nearest_in_refs
 
-__all__ = ["bvh_nearest", "bvh_nearest_kernel"]
+__all__ = ["bvh_nearest", "bvh_nearest_kernel", "binary_walk_stacks"]
+
+
+def binary_walk_stacks(rows: int, depth: int) -> tuple[np.ndarray, np.ndarray]:
+    """The per-thread stacks of the walks over a binary tree ``depth`` deep (this one, the rays' walk
+    of :mod:`.traverse`, and the grids' walks of the BVHs in their cells): the pending nodes and their
+    entry distances (squared distances for the nearest)."""
+    return thread_rows((rows, depth + 2), np.int32), thread_rows((rows, depth + 2))
 
 
 @inline_kernel

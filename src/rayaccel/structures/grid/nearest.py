@@ -27,7 +27,7 @@ import numpy as np
 from numba import prange
 
 from ..._jit import inline_kernel, kernel, lent_rows, parallel_kernel, thread_id, thread_rows
-from ..bvh.nearest import bvh_nearest
+from ..bvh.nearest import binary_walk_stacks, bvh_nearest
 from ..point_actions import box_distance2, nearest_in_refs
 
 __all__ = ["grid_nearest_kernel", "grid_nearest"]
@@ -149,11 +149,11 @@ def grid_nearest_kernel(lo, res, cell_size, cell_first, cell_prims, cell_root, n
                                              points[i, 1], points[i, 2], limit_d2[i], stack_node, stack_d2, grid_stack,
                                              thread_id())
 
+
 def _nearest_scratch(rows: int, bvh_depth: int, nested_grids: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The per-thread scratch of :func:`grid_nearest_kernel`: a stack for the cells' BVHs ``bvh_depth``
-    deep (nodes and squared distances), and a row over the nested grids."""
-    return (thread_rows((rows, bvh_depth + 2), np.int32), thread_rows((rows, bvh_depth + 2)),
-            thread_rows((rows, nested_grids + 1), np.int64))
+    """The per-thread scratch of :func:`grid_nearest_kernel`: the stacks of the cells' BVHs
+    (:func:`..bvh.nearest.binary_walk_stacks`), and a row over the nested grids."""
+    return (*binary_walk_stacks(rows, bvh_depth), thread_rows((rows, nested_grids + 1), np.int64))
 
 
 def grid_nearest(lo, hi, res, cell_size, cell_first, cell_prims, kind, geom, points, limit_d2, out_d2, out_prim, *,
