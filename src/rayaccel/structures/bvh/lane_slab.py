@@ -123,7 +123,14 @@ def enter_children_of_lanes(typingctx, records, node, slabs, scales, lanes, entr
     rays enter (at the top of the tree, before they part ways). Returns ``(children, by_child)``:
     the children some ray in ``lanes`` enters (bit ``c``), and byte ``c`` the rays in ``lanes``
     entering child ``c`` (bit ``r``). Each lane's slab arithmetic is the lane test's, so the rays
-    enter the same children.
+    enter the same children. Two children are tested at once, the packet's eight rays in one half of
+    a vector of sixteen float32 and in the other (one 512-bit register where the processor has
+    them), each child's faces spread over its half from the node's rows by a shuffle: against a
+    child a vector of eight, the same answers, shadow rays from 1024^2 camera hits, settled calls,
+    medians of 9, processes alternating with the code before, closest / any hit: one thread, forest
+    0.92 / 0.97 of the time (three pairs), full dragon 0.91 / 0.96 (two); two threads, forest 0.89 /
+    0.96, dragon 0.94 / 0.98 (two pairs each; 2026-12-07, Intel host with AVX-512). Nodes that fewer
+    rays walk keep the lane test: from four or five rays on, the paired test measured level with it.
 
     ``entry[c]`` gets a distance no greater than the nearest entry into child ``c`` of those rays,
     as from :func:`enter_children_by_lane`, for a walk that orders or culls children by it
@@ -149,17 +156,24 @@ def enter_children_of_lanes(typingctx, records, node, slabs, scales, lanes, entr
         slab_rows = vector_rows(context, builder, sig.args[2], slab_array, floats)
         slab = [builder.load(builder.gep(slab_rows, [ir.Constant(intp, k)]), align=4) for k in range(LANE_SLAB_ROWS)]
         active = builder.trunc(context.cast(builder, lane_bits, sig.args[4], types.int64), ir.IntType(PACKET))
-        in_lanes = builder.bitcast(active, ir.VectorType(ir.IntType(1), PACKET))
         nears = [context.cast(builder, value, sig.args[7 + axis], types.intp) for axis, value in enumerate(args[7:])]
         blocks = nears + [builder.sub(ir.Constant(intp, 2 * axis + 3), near) for axis, near in enumerate(nears)]
         face_rows = [builder.gep(box_values, [builder.mul(block, ir.Constant(intp, WIDTH))]) for block in blocks]
-        missed = ir.Constant(floats, [float("inf")] * PACKET)
+        pair = ir.VectorType(ir.FloatType(), 2 * PACKET)
+        both_halves = ir.Constant(ir.VectorType(ir.IntType(32), 2 * PACKET), list(range(PACKET)) * 2)
+        slab = [builder.shuffle_vector(row, row, both_halves) for row in slab]
+        active_pair = builder.zext(active, ir.IntType(2 * PACKET))
+        active_pair = builder.or_(active_pair, builder.shl(active_pair, ir.Constant(ir.IntType(2 * PACKET), PACKET)))
+        in_lanes = builder.bitcast(active_pair, ir.VectorType(ir.IntType(1), 2 * PACKET))
+        face_blocks = [builder.load(builder.bitcast(face_row, floats.as_pointer()), align=32) for face_row in face_rows]
+        missed = ir.Constant(pair, [float("inf")] * 2 * PACKET)
+        lane_byte = int64((1 << PACKET) - 1)
         children = int64(0)
         by_child = int64(0)
         entries = []
-        for child in range(WIDTH):
-            faces = [splat(builder, builder.load(builder.gep(face_row, [ir.Constant(intp, child)])), floats)
-                     for face_row in face_rows]
+        for child in range(0, WIDTH, 2):
+            spread = ir.Constant(ir.VectorType(ir.IntType(32), 2 * PACKET), [child] * PACKET + [child + 1] * PACKET)
+            faces = [builder.shuffle_vector(block, block, spread) for block in face_blocks]
             enter, exit_ = slab[_ENTER_FROM], slab[_EXIT_BY]
             for axis in range(3):
                 enter, exit_ = tighten_to_slab(builder, faces[axis], faces[axis + 3], slab[_NEAR_ORIGIN + axis],
@@ -168,11 +182,17 @@ def enter_children_of_lanes(typingctx, records, node, slabs, scales, lanes, entr
             used = builder.fadd(faces[0], faces[3])
             entered = builder.and_(builder.and_(builder.fcmp_ordered("<=", enter, exit_), in_lanes),
                                    builder.fcmp_ordered("ord", used, used))
-            rays = builder.zext(builder.bitcast(entered, ir.IntType(PACKET)), int64)
+            rays = builder.zext(builder.bitcast(entered, ir.IntType(2 * PACKET)), int64)
             by_child = builder.or_(by_child, builder.shl(rays, int64(8 * child)))
-            some = builder.zext(builder.icmp_unsigned("!=", rays, int64(0)), int64)
-            children = builder.or_(children, builder.shl(some, int64(child)))
-            entries.append(builder.select(entered, enter, missed))
+            for half in range(2):
+                some = builder.zext(builder.icmp_unsigned("!=", builder.and_(builder.lshr(rays, int64(PACKET * half)),
+                                                                            lane_byte), int64(0)), int64)
+                children = builder.or_(children, builder.shl(some, int64(child + half)))
+            chosen = builder.select(entered, enter, missed)
+            for half in range(2):
+                lanes_of_half = ir.Constant(ir.VectorType(ir.IntType(32), PACKET),
+                                            list(range(PACKET * half, PACKET * (half + 1))))
+                entries.append(builder.shuffle_vector(chosen, chosen, lanes_of_half))
         entry_rows = vector_rows(context, builder, sig.args[5], entry_array, doubles)
         reading = context.cast(builder, read_flag, sig.args[6], types.boolean)
         with builder.if_else(reading) as (read, unread):
