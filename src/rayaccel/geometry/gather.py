@@ -198,6 +198,34 @@ def _corner(geom, prim, j, axis):
                                                                  unsigned(axis)])
 
 
+def stored_corner(geom, prim, j, axis):
+    """:func:`corner` as the layout stores it: float32 in the lanes layout, float64 otherwise."""
+    return corner(geom, prim, j, axis)
+
+
+@overload(stored_corner)
+def _stored_corner(geom, prim, j, axis):
+    if is_lanes_type(geom):
+        return lambda geom, prim, j, axis: _stored_lane_coordinate(geom, prim, 3 * j + axis)
+    return lambda geom, prim, j, axis: corner(geom, prim, j, axis)
+
+
+@intrinsic
+def _stored_lane_coordinate(typingctx, lanes, prim, row):
+    """:func:`_lane_coordinate` as stored, float32."""
+    signature = types.float32(lanes, prim, row)
+
+    def codegen(context, builder, sig, args):
+        prim_value = context.cast(builder, args[1], sig.args[1], types.int64)
+        row_value = context.cast(builder, args[2], sig.args[2], types.int64)
+        int64 = ir.IntType(64)
+        pointer = lane_pointer(context, builder, sig.args[0], args[0], builder.lshr(prim_value, int64(LANE_BITS)),
+                               row_value)
+        return builder.load(builder.gep(pointer, [builder.and_(prim_value, int64(LANES - 1))]))
+
+    return signature, codegen
+
+
 def prefetch_prim(geom, prim):
     """Start loading what testing primitive ``prim`` reads first: its row, the three cache
     lines of its group of lanes, or its corner indices (prefetching its first vertex as well

@@ -107,6 +107,7 @@ def enter_child_lanes(typingctx, records, node, child, state, lanes):
         array, node_index, child_index, state_array, lane_bits = args
         intp = context.get_value_type(types.intp)
         doubles = ir.VectorType(ir.DoubleType(), PACKET)
+        floats = ir.VectorType(ir.FloatType(), PACKET)
         row = record_row(context, builder, sig.args[0], array, node_index, sig.args[1])
         child_value = context.cast(builder, child_index, sig.args[2], types.intp)
         state_data = context.make_array(sig.args[3])(context, builder, state_array).data
@@ -115,7 +116,7 @@ def enter_child_lanes(typingctx, records, node, child, state, lanes):
 
         def corner(block):
             column = builder.add(ir.Constant(intp, WIDTH * block), child_value)
-            return splat(builder, builder.fpext(builder.load(builder.gep(row, [column])), ir.DoubleType()), doubles)
+            return builder.fpext(splat(builder, builder.load(builder.gep(row, [column])), floats), doubles)
 
         enter, exit_ = rows[6], rows[7]
         zero = ir.Constant(doubles, [0.0] * PACKET)

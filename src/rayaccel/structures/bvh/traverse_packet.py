@@ -90,7 +90,7 @@ import numpy as np
 
 from ..._jit import chunk_kernel, inline_kernel, unsigned
 from ..._validate import unusable_rays
-from ...geometry.gather import corner
+from ...geometry.gather import stored_corner
 from ...geometry.kinds import TRIANGLE
 from ...geometry.primitive import ray_setup
 from ...ray_tiles import TILE_COLUMNS, TILE_ROWS, first_tile, lane_ray, next_tile, run_rays
@@ -302,9 +302,10 @@ def _leaf_by_triangle(geom, prim_order, first, count, lanes, done, kx, ky, kz, s
         live = lanes & ~done
         if live == 0:
             break
-        hit = hits_by_lane(state, live, corner(geom, k, 0, kx), corner(geom, k, 0, ky), corner(geom, k, 0, kz),
-                           corner(geom, k, 1, kx), corner(geom, k, 1, ky), corner(geom, k, 1, kz),
-                           corner(geom, k, 2, kx), corner(geom, k, 2, ky), corner(geom, k, 2, kz))
+        hit = hits_by_lane(state, live, stored_corner(geom, k, 0, kx), stored_corner(geom, k, 0, ky),
+                           stored_corner(geom, k, 0, kz), stored_corner(geom, k, 1, kx), stored_corner(geom, k, 1, ky),
+                           stored_corner(geom, k, 1, kz), stored_corner(geom, k, 2, kx), stored_corner(geom, k, 2, ky),
+                           stored_corner(geom, k, 2, kz))
         if hit == 0:
             continue
         prim = prim_order[unsigned(k)]
