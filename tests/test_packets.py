@@ -74,6 +74,23 @@ def test_camera_packets_of_every_fill_match_brute_force(small_dragon, extra):
     np.testing.assert_array_equal(packets.occluded(origins, directions), brute.occluded(origins, directions))
 
 
+@pytest.mark.parametrize("side", [64, 61], ids=["tiles", "rows"])
+def test_packet_answers_are_the_single_walks_in_every_field(small_dragon, side):
+    """A full packet writes its answers four rows a store: every field of a closest hit (NaN
+    barycentrics and -1 for ``geom`` on a miss) and every any-hit flag are the single walk's, for
+    an image's rays in tiles and rows that do not tile."""
+    b = small_dragon.bounds()
+    origins, directions = ra.Camera.framing(b.scene_lo, b.scene_hi).rays(side, side)
+    assert packets_pay(prepare_rays(origins, directions), b.scene_lo, b.scene_hi)
+    assert (image_row_length(directions, SPAN // 2) > 0) == (side == 64)
+    packets, single = ra.build(small_dragon, "bvh-binned"), ra.build(small_dragon, "bvh-binned", packets=False)
+    hits, expected = packets.intersect(origins, directions), single.intersect(origins, directions)
+    assert 0.1 < (expected.prim >= 0).mean() < 0.9
+    for field in ("t", "prim", "u", "v", "geom"):
+        np.testing.assert_array_equal(getattr(hits, field), getattr(expected, field))
+    np.testing.assert_array_equal(packets.occluded(origins, directions), single.occluded(origins, directions))
+
+
 def spans_missing_the_box(origins, directions, lo, hi):
     """How many whole runs of :data:`SPAN` consecutive rays each miss the box ``[lo, hi]``."""
     with np.errstate(divide="ignore", invalid="ignore"):

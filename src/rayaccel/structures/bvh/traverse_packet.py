@@ -87,6 +87,9 @@ Batches that neither :func:`rayaccel.ray_order.packets_pay` nor
 from __future__ import annotations
 
 import numpy as np
+from llvmlite import ir
+from numba import types
+from numba.extending import intrinsic
 
 from ..._jit import chunk_kernel, inline_kernel, unsigned
 from ..._validate import unusable_rays
@@ -230,6 +233,57 @@ def _lanes_jump(directions, packet_first, packet_second):
             longest = max(longest, step)
         px, py, pz = dx, dy, dz
     return longest > _JUMP * _JUMP * (total - longest) / (PACKET - 2)
+
+
+@intrinsic
+def _finish_packet(typingctx, hit, prim, geom, t, u, v, first, second, state, best_prim):
+    """Write a full packet's answers as :func:`..actions.finish_ray_in_mode` writes a closest or any
+    hit's, lanes 0-3 to rows ``first`` to ``first + 3`` and lanes 4-7 to rows ``second`` to
+    ``second + 3`` of each output array that is not empty (``hit``, ``prim``, ``geom``, ``t``,
+    ``u``, ``v``: :class:`..actions.Action`'s), four rows a vector store, from the best distances
+    and barycentrics in ``state`` and the primitives in ``best_prim``. Against the rays written one
+    by one, the same answers, settled calls, medians of 9, processes alternating (2026-12-07, Intel
+    host with AVX-512), time over time before, closest / any hit: forest camera rays one thread
+    0.94-1.00 / 0.93-0.97, two threads 0.91-0.97 / 0.86-0.95; its shadow rays 0.94-1.00 / 0.95-0.99
+    and 0.88-1.00 / 0.95-0.98; the full dragon's 0.98-1.02 (its packets' rays mostly end alone)."""
+    arrays = (hit, prim, geom, t, u, v)
+    if not all(isinstance(a, types.Array) and a.ndim == 1 and a.layout == "C" for a in arrays):
+        return None
+    signature = types.void(hit, prim, geom, t, u, v, first, second, state, best_prim)
+
+    def codegen(context, builder, sig, args):
+        intp = context.get_value_type(types.intp)
+        int64 = ir.IntType(64)
+        doubles = ir.VectorType(ir.DoubleType(), PACKET)
+        state_rows = builder.bitcast(context.make_array(sig.args[8])(context, builder, args[8]).data,
+                                     doubles.as_pointer())
+        best, best_u, best_v = (builder.load(builder.gep(state_rows, [ir.Constant(intp, row // PACKET)]), align=8)
+                                for row in (_BEST, _U, _V))
+        prim_rows = context.make_array(sig.args[9])(context, builder, args[9]).data
+        prims = builder.load(builder.bitcast(prim_rows, ir.VectorType(int64, PACKET).as_pointer()), align=8)
+        zero = ir.Constant(ir.VectorType(int64, PACKET), [0] * PACKET)
+        hit_lanes = builder.icmp_signed(">=", prims, zero)
+
+        def on_hit(value, otherwise):
+            return builder.select(hit_lanes, value, ir.Constant(doubles, [otherwise] * PACKET))
+
+        values = (builder.zext(hit_lanes, ir.VectorType(ir.IntType(8), PACKET)), prims,
+                  builder.select(hit_lanes, zero, prims), on_hit(best, float("inf")), on_hit(best_u, float("nan")),
+                  on_hit(best_v, float("nan")))
+        rows = [context.cast(builder, args[k], sig.args[k], types.intp) for k in (6, 7)]
+        halves = [ir.Constant(ir.VectorType(ir.IntType(32), TILE_COLUMNS), list(range(k, k + TILE_COLUMNS)))
+                  for k in (0, TILE_COLUMNS)]
+        for array_type, array, vector in zip(sig.args[:6], args[:6], values):
+            out = context.make_array(array_type)(context, builder, array)
+            four = ir.VectorType(vector.type.element, TILE_COLUMNS)
+            with builder.if_then(builder.icmp_signed(">", builder.extract_value(out.shape, 0), ir.Constant(intp, 0))):
+                for row, lanes in zip(rows, halves):
+                    pointer = builder.bitcast(builder.gep(out.data, [row]), four.as_pointer())
+                    builder.store(builder.shuffle_vector(vector, vector, lanes), pointer,
+                                  align=context.get_abi_alignment(vector.type.element))
+        return context.get_dummy_value()
+
+    return signature, codegen
 
 
 @inline_kernel
@@ -526,6 +580,10 @@ def _packet_walk(ray_first, ray_end, tid, root_box, records, links, prim_order, 
                             bounds[BOUND_BEST] = farthest_best
                     if node < 0:
                         break
+            if loaded and mode == NEAREST and hit_slot.shape[0] == 0:
+                _finish_packet(action.hit, action.prim, action.geom, action.t, action.u, action.v, packet_first,
+                               packet_second, state, best_prim)
+                continue
             for r in range(n_lanes):
                 finish_ray_in_mode(mode, action, result_row(hit_slot, lane_ray(packet_first, r, packet_second)),
                                    state[_BEST + r],
