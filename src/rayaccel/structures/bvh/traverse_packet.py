@@ -23,13 +23,15 @@ since ``occluded`` writes one byte a ray: against the lane-after-lane tests, one
 time, medians of 9-15 in one process, forest 1.11 and 1.13, full dragon 1.02 (two threads,
 alternating processes: forest 0.98 and 1.02, dragon 1.16 and 0.91, the noise of that hour;
 before the change to ``occluded``: the same on the forest, up to 4 % slower on the dragon).
-A leaf that only one or two of those rays still reach is tested ray by ray instead, each with
-the single-ray walk's leaf test (:func:`.traverse_wide.visit_leaf`, four triangles at once where
+A leaf that only one of those rays still reaches is tested by that ray alone, with the
+single-ray walk's leaf test (:func:`.traverse_wide.visit_leaf`, four triangles at once where
 the leaves are in lanes) and the constants the packet's set-up left in its lanes: the eight-ray
-test computes every lane. Against testing such leaves by triangle, one thread, CPU time, medians
-of 5-7 alternating in one process, closest / any hit: forest shadow rays 1.06 / 1.06, camera
-rays 1.02 / 1.06; full dragon shadow 1.05 / 1.05, camera 1.05 / 1.07 (one ray at most: 1.02-1.07;
-three at most: 1.02-1.07, and lower on the dragon's shadow rays).
+test computes every lane. Leaves that two rays reached went ray by ray too until the eight-ray
+test read its corners in one instruction each (see :mod:`.packet_triangle`); since, testing
+them by triangle, time over time before (2026-12-07, one thread, settled calls, medians of 9,
+three pairs of processes alternating, closest / any hit): forest camera rays 0.97-1.00 /
+0.97-1.03, shadow rays 0.96-0.98 / 0.96-0.99; full dragon camera 0.96-0.99 / 0.97-0.99,
+shadow 0.94-0.98 / 0.94-0.97; leaves of one ray by triangle too measured level with that.
 A closest-hit packet takes the entered children nearest first and skips an entry popped
 beyond the farthest best hit of its rays, which also bounds its node tests; an any-hit packet
 drops each ray that found a hit, and stops when none is left. Counting and listing walks take
@@ -299,13 +301,6 @@ def _keep_lane_hit(state, best_prim, r, best_t, prim_r, best_u, best_v):
 
 
 @inline_kernel
-def _two_at_most(lanes):
-    """Whether at most two bits of ``lanes`` are set."""
-    fewer = lanes & (lanes - 1)
-    return (fewer & (fewer - 1)) == 0
-
-
-@inline_kernel
 def _sheared_lane(state, r, kx, ky, kz):
     """Lane ``r``'s ray as :func:`rayaccel.geometry.primitive.ray_setup` gives it to the triangle test,
     from the constants :func:`.packet_triangle.set_up_shear` wrote for a packet whose rays share the
@@ -560,7 +555,7 @@ def _packet_walk(ray_first, ray_end, tid, root_box, records, links, prim_order, 
                             shared_axes = axes != NOT_SHARED
                             kx, ky, kz = axes & 3, (axes >> 2) & 3, axes >> 4
                             lanes_set_up = True
-                        if lane_triangles and shared_axes and not _two_at_most(lanes):
+                        if lane_triangles and shared_axes and lanes & (lanes - 1) != 0:
                             done, improved = _leaf_by_triangle(geom, prim_order, first, count, lanes, done, kx, ky,
                                                                kz, state, best_prim, any_hit)
                         else:
