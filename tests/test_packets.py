@@ -23,6 +23,7 @@ from rayaccel.geometry.triangle import intersect_triangle
 from rayaccel.ray_order import MIN_PACKET_RAYS, lane_packets_pay, packets_pay
 from rayaccel.ray_tiles import image_row_length
 from rayaccel.rays import prepare_rays, ray_limit
+from rayaccel.structures.actions import is_closer
 from rayaccel.structures.bvh import accelerator, traverse_packet
 from rayaccel.structures.bvh.lane_slab import (
     LANE_SLAB_ROWS,
@@ -42,7 +43,7 @@ from rayaccel.structures.bvh.packet_triangle import (
     hits_by_lane,
     set_up_shear,
 )
-from rayaccel.structures.bvh.traverse_packet import LANE_ROWS, SPAN
+from rayaccel.structures.bvh.traverse_packet import LANE_ROWS, SPAN, _keep_closer_hits
 from rayaccel.structures.bvh.wide import WIDTH
 from rayaccel.structures.bvh.wide_slab import enter_children, slab_limits, slab_ray
 
@@ -652,3 +653,34 @@ def test_vector_shear_set_up_is_each_rays_own(dtype):
                                           scalar_rows.ravel())
         kinds.add(code)
     assert NOT_SHARED in kinds and len(kinds) >= 7
+
+
+@numba.njit(cache=False)
+def _keep(state, best_prim, hit, prim):
+    """The vector keeping of a triangle's hits, called from Python (not cached, as :func:`_lane_test`)."""
+    return _keep_closer_hits(state, best_prim, hit, prim)
+
+
+def test_vector_keeping_of_hits_is_each_lanes_own():
+    """A packet's lanes keep a triangle's hits as :func:`rayaccel.structures.actions.is_closer` decides
+    lane by lane: a nearer hit, or an equal distance on a lower primitive, or any hit of a lane with
+    none yet, but not an infinite distance nor a lane outside the hit mask; the best distance,
+    barycentrics and primitive change together, and the mask returned names the lanes that changed."""
+    rng = np.random.default_rng(5)
+    best_row, hit_row = 7 * PACKET, HIT_ROW * PACKET
+    for _ in range(200):
+        state = rng.choice([0.5, 1.0, 2.0, np.inf], size=LANE_ROWS * PACKET)
+        best_prim = rng.choice([-1, 3, 7, 12], size=PACKET).astype(np.int64)
+        hit, prim = int(rng.integers(0, 256)), int(rng.choice([3, 7, 12]))
+        expected_state, expected_prim = state.copy(), best_prim.copy()
+        changed = 0
+        for r in range(PACKET):
+            t = state[hit_row + r]
+            if hit >> r & 1 and is_closer(t, prim, state[best_row + r], best_prim[r]):
+                for j in range(3):
+                    expected_state[best_row + j * PACKET + r] = state[hit_row + j * PACKET + r]
+                expected_prim[r] = prim
+                changed |= 1 << r
+        assert _keep(state, best_prim, hit, prim) == changed
+        np.testing.assert_array_equal(state, expected_state)
+        np.testing.assert_array_equal(best_prim, expected_prim)
