@@ -121,6 +121,7 @@ from .packet_slab import (
     load_lane_limits,
     load_lanes,
     load_packet,
+    reduce_lanes,
 )
 from .packet_triangle import HIT_ROW, HIT_ROWS, NOT_SHARED, SHEAR_ROW, hits_by_lane, set_up_shear
 from .traverse_wide import push_child, visit_leaf
@@ -327,6 +328,37 @@ def _keep_closer_hits(typingctx, state, best_prim, hit, prim):
     return signature, codegen
 
 
+@intrinsic
+def _nearest_start_farthest_best(typingctx, state):
+    """The smallest ``t_min`` and the farthest best distance of a packet's eight rays (rows
+    :data:`_T_MIN` and :data:`_BEST` of ``state``), each row reduced in vector instructions."""
+    signature = types.UniTuple(types.float64, 2)(state)
+
+    def codegen(context, builder, sig, args):
+        intp = context.get_value_type(types.intp)
+        doubles = ir.VectorType(ir.DoubleType(), PACKET)
+        rows = builder.bitcast(context.make_array(sig.args[0])(context, builder, args[0]).data, doubles.as_pointer())
+        t_min, best = (builder.load(builder.gep(rows, [ir.Constant(intp, row // PACKET)]), align=8)
+                       for row in (_T_MIN, _BEST))
+        return context.make_tuple(builder, sig.return_type,
+                                  (reduce_lanes(builder, t_min, "<"), reduce_lanes(builder, best, ">")))
+
+    return signature, codegen
+
+
+@inline_kernel
+def _packet_limits(state, group_first, group):
+    """The smallest ``t_min`` and the farthest best distance of the rays in lanes ``group_first``
+    to ``group_first + group - 1``."""
+    if group == PACKET:
+        return _nearest_start_farthest_best(state)
+    nearest_start, farthest_best = np.inf, -np.inf
+    for r in range(group_first, group_first + group):
+        nearest_start = min(nearest_start, state[_T_MIN + r])
+        farthest_best = max(farthest_best, state[_BEST + r])
+    return nearest_start, farthest_best
+
+
 @inline_kernel
 def _keep_lane_hit(state, best_prim, r, best_t, prim_r, best_u, best_v):
     """Store lane ``r``'s best hit when the leaf changed it; returns whether it did."""
@@ -527,11 +559,7 @@ def _packet_walk(ray_first, ray_end, tid, root_box, records, links, prim_order, 
                 active = ((1 << group) - 1) << group_first
                 if not (by_lane or (loaded and not mixed)):
                     _bound_group(state, bounds, group_first, group)
-                packet_t_min = np.inf
-                farthest_best = -np.inf
-                for r in range(group_first, group_first + group):
-                    packet_t_min = min(packet_t_min, state[_T_MIN + r])
-                    farthest_best = max(farthest_best, state[_BEST + r])
+                packet_t_min, farthest_best = _packet_limits(state, group_first, group)
                 bounds[BOUND_T_MIN] = packet_t_min
                 bounds[BOUND_BEST] = farthest_best
                 done = 0
@@ -606,10 +634,9 @@ def _packet_walk(ray_first, ray_end, tid, root_box, records, links, prim_order, 
                             sp = 0
                             break
                         if improved and not any_hit:
-                            farthest_best = -np.inf
-                            for r in range(group_first, group_first + group):
-                                farthest_best = max(farthest_best, state[_BEST + r])
-                                if by_lane:
+                            farthest_best = _packet_limits(state, group_first, group)[1]
+                            if by_lane:
+                                for r in range(group_first, group_first + group):
                                     narrow_lane_slab(slabs, scales, r, state[_BEST + r])
                             bounds[BOUND_BEST] = farthest_best
                     if node < 0:
