@@ -162,23 +162,6 @@ def lane_pointer(context, builder, lanes_type, lanes_value, group, row):
     return builder.gep(array.data, [offset])
 
 
-@intrinsic
-def _lane_coordinate(typingctx, lanes, prim, row):
-    """Row ``row`` (coordinate ``k`` of corner ``j`` at ``3 j + k``) of triangle ``prim`` in a lanes layout."""
-    signature = types.float64(lanes, prim, row)
-
-    def codegen(context, builder, sig, args):
-        prim_value = context.cast(builder, args[1], sig.args[1], types.int64)
-        row_value = context.cast(builder, args[2], sig.args[2], types.int64)
-        int64 = ir.IntType(64)
-        group = builder.lshr(prim_value, int64(LANE_BITS))
-        pointer = lane_pointer(context, builder, sig.args[0], args[0], group, row_value)
-        value = builder.load(builder.gep(pointer, [builder.and_(prim_value, int64(LANES - 1))]))
-        return builder.fpext(value, ir.DoubleType())
-
-    return signature, codegen
-
-
 def corner(geom, prim, j, axis):
     """Coordinate ``axis`` of corner ``j`` of triangle ``prim`` in either layout, as a float."""
     if isinstance(geom, tuple):
@@ -191,7 +174,7 @@ def corner(geom, prim, j, axis):
 @overload(corner)
 def _corner(geom, prim, j, axis):
     if is_lanes_type(geom):
-        return lambda geom, prim, j, axis: _lane_coordinate(geom, prim, 3 * j + axis)
+        return lambda geom, prim, j, axis: np.float64(_stored_lane_coordinate(geom, prim, 3 * j + axis))
     if isinstance(geom, types.Array):
         return lambda geom, prim, j, axis: np.float64(geom[unsigned(prim), unsigned(3 * j + axis)])
     return lambda geom, prim, j, axis: np.float64(geom[1][unsigned(geom[0][unsigned(prim), unsigned(j)]),
@@ -212,7 +195,8 @@ def _stored_corner(geom, prim, j, axis):
 
 @intrinsic
 def _stored_lane_coordinate(typingctx, lanes, prim, row):
-    """:func:`_lane_coordinate` as stored, float32."""
+    """Row ``row`` (coordinate ``k`` of corner ``j`` at ``3 j + k``) of triangle ``prim`` in a lanes
+    layout, float32 as stored."""
     signature = types.float32(lanes, prim, row)
 
     def codegen(context, builder, sig, args):
