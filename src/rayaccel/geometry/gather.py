@@ -183,6 +183,8 @@ def _corner(geom, prim, j, axis):
 
 def stored_corner(geom, prim, j, axis):
     """:func:`corner` as the layout stores it: float32 in the lanes layout, float64 otherwise."""
+    if is_lanes(geom):
+        return geom[prim // LANES, 3 * j + axis, prim % LANES]
     return corner(geom, prim, j, axis)
 
 
