@@ -53,7 +53,6 @@ from __future__ import annotations
 import argparse
 import ast
 import collections
-import ctypes
 import os
 import re
 import shutil
@@ -127,12 +126,16 @@ def trace(args) -> None:
     print(f"{calls} calls, {(time.perf_counter() - start) / calls * 1e3:.1f} ms each")
     if args.count:
         (args.out / "rays.txt").write_text(f"{calls * len(origins)}\n")
-    with open("/proc/self/maps") as maps:
+    with open("/proc/self/maps") as maps, open("/proc/self/mem", "rb", buffering=0) as memory:
         for line in maps:
             fields = line.split()
             if "x" in fields[1] and len(fields) < 6:
                 first, end = (int(part, 16) for part in fields[0].split("-"))
-                (args.out / f"code_{first:x}.bin").write_bytes(ctypes.string_at(first, end - first))
+                try:
+                    code = os.pread(memory.fileno(), end - first, first)
+                except OSError:
+                    continue
+                (args.out / f"code_{first:x}.bin").write_bytes(code)
 
 
 def sampled_addresses(perf_data: Path) -> collections.Counter:
