@@ -63,8 +63,37 @@ def test_the_calling_thread_takes_chunks_too(two_threads):
         takers.append(threading.get_ident())
 
     share_among_threads(run, 64, 4)
-    assert len(takers) == 16
+    assert len(takers) >= 16
     assert threading.get_ident() in takers
+
+
+@pytest.mark.parametrize("shortest_seconds", [0.0, 10.0])
+def test_last_chunks_shrink_to_the_shortest_time_in_whole_alignments(two_threads, shortest_seconds):
+    """The chunks keep to the length given until the last few a thread, then shrink with the
+    items left, but not below what the last chunk's pace gets through in ``shortest_seconds``
+    (ten seconds here: none shrinks) nor below the alignment; every chunk starts on it and every
+    item is taken once."""
+    n, chunk, align = 10_000, 640, 64
+    seen = np.zeros(n, dtype=np.int64)
+    spans = []
+    lock = threading.Lock()
+
+    def run(first, end, row):
+        with lock:
+            spans.append((first, end))
+        seen[first:end] += 1
+        time.sleep(0.0005)
+
+    share_among_threads(run, n, chunk, align, shortest_seconds)
+    assert (seen == 1).all()
+    spans.sort()
+    lengths = [end - first for first, end in spans[:-1]]
+    assert all(first % align == 0 for first, _ in spans)
+    assert all(length == chunk for length in lengths[:n // chunk - 4])
+    if shortest_seconds:
+        assert all(length == chunk for length in lengths)
+    else:
+        assert lengths[-1] == align and lengths == sorted(lengths, reverse=True)
 
 
 def _recording_walk(seconds_a_ray: float):

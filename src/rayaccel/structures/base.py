@@ -31,7 +31,7 @@ from .point_queries import PointQueries, any_dask
 
 __all__ = ["Accelerator", "is_closer", "intersect_references", "store_hit", "settled_before", "walk_rays",
            "interval_stacks", "EXIT_MARGIN", "RAY_CHUNK", "CHUNKS_PER_THREAD", "ALONE_FIRST_BELOW", "FIRST_CHUNK",
-           "HELPERS_FROM_WAKES", "CHUNK_WAKES"]
+           "HELPERS_FROM_WAKES", "CHUNK_WAKES", "TAIL_CHUNK_WAKES"]
 
 # Relative margin by which a hit must lie before a cell's exit for the walk to stop there.
 EXIT_MARGIN = 1e-9
@@ -57,6 +57,12 @@ of a batch must take the calling thread alone for the helpers to share them
 CHUNK_WAKES = 2.0
 """How many start latencies of a helper a chunk of the rays then shared takes at least, at the
 last chunk's time a ray: cheap rays go in fewer, longer chunks, with fewer hand-overs of the GIL."""
+
+TAIL_CHUNK_WAKES = 8.0
+"""How many start latencies of a helper the last chunks of a batch, which shrink so that the
+threads end together (:func:`rayaccel._jit.share_among_threads`), take at least at the pace of
+the chunk before: only chunks several times longer are cut (the incoherent rays' chunks of
+milliseconds, not the camera rays' tenths of one)."""
 
 LIST_SLOTS = (8, 64)
 """Hits per ray that the listing walks of :meth:`Accelerator.intersect_all` have room for: all
@@ -87,7 +93,8 @@ def walk_rays(walk, n_rays: int, *args, align: int = 1) -> int:
     """Run a structure's ray walk, a :func:`rayaccel._jit.chunk_kernel` taking ``(ray_first,
     ray_end, tid, *args)``, over ``n_rays`` rays on threads: chunks of :data:`RAY_CHUNK` rays
     or more, a multiple of ``align``, about :data:`CHUNKS_PER_THREAD` per thread, handed out as
-    threads free up; ``tid`` picks the chunk's rows of per-thread stacks and mailboxes. Returns
+    threads free up, the last ones shorter but no shorter than :data:`TAIL_CHUNK_WAKES` helper
+    wakes (:func:`rayaccel._jit.share_among_threads`); ``tid`` picks the chunk's rows of per-thread stacks and mailboxes. Returns
     the total of what the walk returns for its chunks: the unusable rays it met, for a walk that
     tests its rays itself (see :attr:`Accelerator._walk_checks_rays`), and 0 for one that
     returns nothing. A batch of one chunk or less runs on the calling thread at once, and one of
@@ -106,7 +113,7 @@ def walk_rays(walk, n_rays: int, *args, align: int = 1) -> int:
         chunk = -(-_even_chunk(n_rays, threads) // align) * align
     counts = []
     share_among_threads(lambda a, b, tid: counts.append(walk(first + a, first + b, tid, *args)), n_rays - first,
-                        chunk)
+                        chunk, align, TAIL_CHUNK_WAKES * helper_wake_seconds())
     return found + sum(count for count in counts if count is not None)
 
 
