@@ -68,11 +68,12 @@ def test_the_calling_thread_takes_chunks_too(two_threads):
 
 
 @pytest.mark.parametrize("shortest_seconds", [0.0, 10.0])
-def test_last_chunks_shrink_to_the_shortest_time_in_whole_alignments(two_threads, shortest_seconds):
-    """The chunks keep to the length given until the last few a thread, then shrink with the
-    items left, but not below what the last chunk's pace gets through in ``shortest_seconds``
-    (ten seconds here: none shrinks) nor below the alignment; every chunk starts on it and every
-    item is taken once."""
+def test_threads_take_their_own_parts_then_shrinking_chunks(two_threads, shortest_seconds):
+    """Each thread takes chunks from the front of its own contiguous part of the items, then,
+    its part done, from the back of the part with most left; the chunks keep to the length given
+    until the last few a thread, then shrink with the items left, but not below what the last
+    chunk's pace gets through in ``shortest_seconds`` (ten seconds here: none shrinks) nor below
+    the alignment. Every chunk starts on the alignment and every item is taken once."""
     n, chunk, align = 10_000, 640, 64
     seen = np.zeros(n, dtype=np.int64)
     spans = []
@@ -80,20 +81,21 @@ def test_last_chunks_shrink_to_the_shortest_time_in_whole_alignments(two_threads
 
     def run(first, end, row):
         with lock:
-            spans.append((first, end))
+            spans.append((first, end, row))
         seen[first:end] += 1
         time.sleep(0.0005)
 
     share_among_threads(run, n, chunk, align, shortest_seconds)
     assert (seen == 1).all()
-    spans.sort()
-    lengths = [end - first for first, end in spans[:-1]]
-    assert all(first % align == 0 for first, _ in spans)
+    assert all(first % align == 0 and 0 < end - first <= chunk for first, end, _ in spans)
+    firsts = {row: min(first for first, _, r in spans if r == row) for row in (0, 1)}
+    assert firsts == {0: 0, 1: n // 2 // align * align}
+    lengths = [end - first for first, end, _ in spans]
     assert all(length == chunk for length in lengths[:n // chunk - 4])
     if shortest_seconds:
-        assert all(length == chunk for length in lengths)
+        assert len(spans) <= n // chunk + 3
     else:
-        assert lengths[-1] == align and lengths == sorted(lengths, reverse=True)
+        assert min(lengths) == align and len(spans) > n // chunk + 3
 
 
 def _recording_walk(seconds_a_ray: float):

@@ -32,7 +32,6 @@ from __future__ import annotations
 
 import contextlib
 import copy
-import itertools
 import math
 import os
 import threading
@@ -394,7 +393,7 @@ GUIDED_SHARE = 0.5
 """The part of the items left, divided among the threads, that a chunk of
 :func:`share_among_threads` takes once that is less than the chunk it was given."""
 _TAIL_CHUNKS = 2
-"""Chunks per thread at the end of :func:`share_among_threads`'s items from which its chunks may
+"""Chunks a thread, left of :func:`share_among_threads`'s items in all, from which its chunks may
 shrink."""
 
 
@@ -428,67 +427,80 @@ def on_threads(run, n: int, min_chunk: int = 16384) -> list:
 
 
 def share_among_threads(run, n: int, chunk: int, align: int = 1, shortest_seconds: float = 0.0) -> None:
-    """``run(first, end, row)`` over chunks of the ``n`` items, taken in turn by
-    ``chunk_count(n, chunk)`` threads as each frees up: chunks of ``chunk`` items, but the last
-    :data:`_TAIL_CHUNKS` chunks a thread's worth of items go in chunks of :data:`GUIDED_SHARE` of
-    the items left divided among the threads, at most ``chunk``, at least what the pace of the
-    last chunk run gets through in ``shortest_seconds``, and whole multiples of ``align`` (``chunk``
-    is one); ``row`` is the taking thread's number, below that count, for per-thread scratch rows.
+    """``run(first, end, row)`` over chunks of the ``n`` items, run by ``chunk_count(n, chunk)``
+    threads, ``row`` the running thread's number (below that count, for per-thread scratch
+    rows). Each thread owns a contiguous part of the items, one part a thread, and takes chunks
+    from its front; a thread whose part is done takes them from the back of the part with most
+    items left. Chunks are ``chunk`` items long (or what is left of a part) until fewer than
+    :data:`_TAIL_CHUNKS` chunks a thread are left in all, then :data:`GUIDED_SHARE` of the items left
+    divided among the threads, but no fewer than the last chunk's pace gets through in
+    ``shortest_seconds``; every chunk starts at a multiple of ``align`` (``chunk`` is one).
 
     For passes whose work per item varies along the items, such as the rays of a camera,
     whose lower half may hold the whole model: split in one chunk per thread, one thread
     idles while the other finishes (camera rays on the full dragon, one thread: 0.066 s for
-    the upper half of the image, 0.092 s for the lower). Each thread takes its next chunk
-    from a shared counter (``next`` on an ``itertools.count`` runs under the GIL, so each
-    start goes to one thread; the last chunks under a lock), and the calling thread is one of
-    them (:func:`_with_helpers`); after an error no thread takes another chunk. Before, the pool
-    ran one task per chunk while the caller waited for each task's future in turn; against that,
-    two threads, medians of 11 calls (forest) and 7 (full dragon) alternating in one process,
-    the time the two threads stood between chunks fell from 2.36 to 0.69 ms for the forest's
-    camera rays, any hit (the call took 13-18 ms), 2.21 to 0.85 for their closest hit, 9.59 to
-    5.06 for incoherent rays, any hit, and on the dragon from 2.12 to 0.62 (camera rays, any
-    hit) and 16.3 to 6.0 ms (incoherent); the first chunk began 0.2-0.5 ms sooner.
+    the upper half of the image, 0.092 s for the lower). The calling thread is one of the
+    threads (:func:`_with_helpers`); after an error no thread takes another chunk. Before, the
+    pool ran one task per chunk while the caller waited for each task's future in turn; against
+    that, two threads, medians of 11 calls (forest) and 7 (full dragon) alternating in one
+    process, the time the two threads stood between chunks fell from 2.36 to 0.69 ms for the
+    forest's camera rays, any hit (the call took 13-18 ms), 2.21 to 0.85 for their closest hit,
+    9.59 to 5.06 for incoherent rays, any hit, and on the dragon from 2.12 to 0.62 (camera rays,
+    any hit) and 16.3 to 6.0 ms (incoherent); the first chunk began 0.2-0.5 ms sooner.
+
+    Parts of their own, because two cores reading the same nodes pay for it: two Python threads
+    each walking 2^19 of the forest's incoherent rays through one tree took 94.6 ms a call, the
+    same through two copies of the tree 81.1 ms, one thread alone 81.0-83.3 (2026-12-08, Intel
+    host, two vCPUs); where chunks went to the threads in turn, the two walked neighbouring
+    rays, which a sorted batch (:func:`rayaccel.ray_order.coherent_batch`) sends through the same
+    nodes. Against that, 2^20 incoherent rays on two threads, closest hit, medians of 9 calls,
+    processes alternating, three pairs: the forest's threads busy 194.5-198.9 ms in all against
+    201.7-202.1 (calls of 99.0-101.1 ms against 102.6-103.5), the full dragon's 371.3-381.8
+    against 383.1-385.7 (calls 187.6-192.5 against 198.5-198.6); camera and shadow rays, settled
+    calls, the time over the time before: forest 0.96-1.06, full dragon 0.98-1.04.
 
     The last chunks shrink with the items left, as in guided self-scheduling (Polychronopoulos &
     Kuck, "Guided Self-Scheduling: A Practical Scheduling Scheme for Parallel Supercomputers", IEEE
-    Trans. Computers 36(12), 1987), so that the threads end together: 2^20 incoherent rays through
-    the full dragon on two threads, closest hit, 32 chunks of 11 ms, had one thread end 8-10 ms
-    before the other (calls of 191-194 ms); with the last ones shrinking, 0.2 ms (calls of 170-188
-    ms, 2026-12-08; settled calls in processes alternating with the code before, medians of 9,
-    time over time before: 0.86-1.04 closest, 0.88-0.99 any hit, three pairs). Only the last
-    ones: guided self-scheduling throughout gave a quarter of a camera's rays to one chunk, taken
-    where the sky gives way to the model, which held its thread for 8 ms while the other ended at
-    7 ms (forest, 1024^2 camera rays, closest hit; the call 10.2-10.6 ms against 9.0). And none
-    shorter than ``shortest_seconds``: chunks down to 1,024 camera rays, a few microseconds each,
-    had the threads wait on each other's hand-over of the GIL (any hit 3.7-3.8 ms against
-    3.4-3.5)."""
+    Trans. Computers 36(12), 1987), so that the threads end together: the full dragon's
+    incoherent rays, in 32 chunks of 11 ms, had one thread end 8-10 ms before the other (calls of
+    191-194 ms); with the last ones shrinking, 0.2 ms. Only the last: guided self-scheduling
+    throughout gave a quarter of a camera's rays to one chunk, taken where the sky gives way to the
+    model, which held its thread for 8 ms while the other ended at 7 ms (forest, 1024^2 camera
+    rays, closest hit; the call 10.2-10.6 ms against 9.0). And none shorter than
+    ``shortest_seconds``: chunks down to 1,024 camera rays, a few microseconds each, had the
+    threads wait on each other's hand-over of the GIL (any hit 3.7-3.8 ms against 3.4-3.5)."""
     threads = chunk_count(n, chunk)
     if threads == 1:
         run(0, n, 0)
         return
-    tail = max(0, n // chunk - _TAIL_CHUNKS * threads) * chunk
-    starts = itertools.count(0, chunk)
+    starts = [row * n // threads // align * align for row in range(threads)]
+    fronts, backs = starts, starts[1:] + [n]
     lock = threading.Lock()
-    tail_taken = [tail]
     pace = [0.0]
     failed = []
 
-    def next_chunk():
-        first = next(starts)
-        if first < tail:
-            return first, first + chunk
+    def next_chunk(row):
         with lock:
-            first = tail_taken[0]
-            if first >= n:
+            left = sum(back - front for front, back in zip(fronts, backs))
+            if left == 0 or failed:
                 return None
-            shortest = shortest_seconds / pace[0] if pace[0] > 0.0 else chunk
-            guided = -(-int(max(GUIDED_SHARE * (n - first) / threads, shortest)) // align) * align
-            size = min(chunk, max(align, guided))
-            tail_taken[0] = min(first + size, n)
-            return first, tail_taken[0]
+            size = chunk
+            if left < _TAIL_CHUNKS * threads * chunk:
+                shortest = shortest_seconds / pace[0] if pace[0] > 0.0 else chunk
+                guided = -(-int(max(GUIDED_SHARE * left / threads, shortest)) // align) * align
+                size = min(chunk, max(align, guided))
+            if fronts[row] < backs[row]:
+                first, end = fronts[row], min(fronts[row] + size, backs[row])
+                fronts[row] = end
+                return first, end
+            victim = max(range(threads), key=lambda k: backs[k] - fronts[k])
+            end = backs[victim]
+            first = max(fronts[victim], (end - size) // align * align)
+            backs[victim] = first
+            return first, end
 
     def take_chunks(row):
-        while not failed and (span := next_chunk()) is not None:
+        while (span := next_chunk(row)) is not None:
             start = time.perf_counter()
             try:
                 run(*span, row)

@@ -92,10 +92,11 @@ def settled_before(best_prim, best_t, t_exit):
 def walk_rays(walk, n_rays: int, *args, align: int = 1) -> int:
     """Run a structure's ray walk, a :func:`rayaccel._jit.chunk_kernel` taking ``(ray_first,
     ray_end, tid, *args)``, over ``n_rays`` rays on threads: chunks of :data:`RAY_CHUNK` rays
-    or more, a multiple of ``align``, about :data:`CHUNKS_PER_THREAD` per thread, handed out as
-    threads free up, the last ones shorter but no shorter than :data:`TAIL_CHUNK_WAKES` helper
-    wakes (:func:`rayaccel._jit.share_among_threads`); ``tid`` picks the chunk's rows of per-thread stacks and mailboxes. Returns
-    the total of what the walk returns for its chunks: the unusable rays it met, for a walk that
+    or more, a multiple of ``align``, about :data:`CHUNKS_PER_THREAD` per thread, each thread
+    taking them from a part of the rays of its own first, the last ones shorter but no shorter
+    than :data:`TAIL_CHUNK_WAKES` helper wakes (:func:`rayaccel._jit.share_among_threads`); ``tid``
+    picks the chunk's rows of per-thread stacks and mailboxes. Returns the total of what the walk
+    returns for its chunks: the unusable rays it met, for a walk that
     tests its rays itself (see :attr:`Accelerator._walk_checks_rays`), and 0 for one that
     returns nothing. A batch of one chunk or less runs on the calling thread at once, and one of
     fewer than :data:`ALONE_FIRST_BELOW` rays begins there alone (:func:`_walk_while_alone_pays`)."""
