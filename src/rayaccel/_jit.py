@@ -495,7 +495,7 @@ def share_among_threads(run, n: int, chunk: int, align: int = 1, shortest_second
                 return first, end
             victim = max(range(threads), key=lambda k: backs[k] - fronts[k])
             end = backs[victim]
-            first = max(fronts[victim], (end - size) // align * align)
+            first = max(fronts[victim], -(-(end - size) // align) * align)
             backs[victim] = first
             return first, end
 
