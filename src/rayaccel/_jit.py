@@ -389,7 +389,7 @@ def _thread_pool() -> HelperThreads:
     return _pool[pid]
 
 
-GUIDED_SHARE = 0.5
+_GUIDED_SHARE = 0.5
 """The part of the items left, divided among the threads, that a chunk of
 :func:`share_among_threads` takes once that is less than the chunk it was given."""
 _TAIL_CHUNKS = 2
@@ -432,7 +432,7 @@ def share_among_threads(run, n: int, chunk: int, align: int = 1, shortest_second
     rows). Each thread owns a contiguous part of the items, one part a thread, and takes chunks
     from its front; a thread whose part is done takes them from the back of the part with most
     items left. Chunks are ``chunk`` items long (or what is left of a part) until fewer than
-    :data:`_TAIL_CHUNKS` chunks a thread are left in all, then :data:`GUIDED_SHARE` of the items left
+    :data:`_TAIL_CHUNKS` chunks a thread are left in all, then :data:`_GUIDED_SHARE` of the items left
     divided among the threads, but no fewer than the last chunk's pace gets through in
     ``shortest_seconds``; every chunk starts at a multiple of ``align`` (``chunk`` is one).
 
@@ -457,7 +457,8 @@ def share_among_threads(run, n: int, chunk: int, align: int = 1, shortest_second
     processes alternating, three pairs: the forest's threads busy 194.5-198.9 ms in all against
     201.7-202.1 (calls of 99.0-101.1 ms against 102.6-103.5), the full dragon's 371.3-381.8
     against 383.1-385.7 (calls 187.6-192.5 against 198.5-198.6); camera and shadow rays, settled
-    calls, the time over the time before: forest 0.96-1.06, full dragon 0.98-1.04.
+    calls, the time over the time before: forest 0.91-1.11 (six pairs, the noise of that hour), full
+    dragon 0.98-1.04 (two).
 
     The last chunks shrink with the items left, as in guided self-scheduling (Polychronopoulos &
     Kuck, "Guided Self-Scheduling: A Practical Scheduling Scheme for Parallel Supercomputers", IEEE
@@ -487,7 +488,7 @@ def share_among_threads(run, n: int, chunk: int, align: int = 1, shortest_second
             size = chunk
             if left < _TAIL_CHUNKS * threads * chunk:
                 shortest = shortest_seconds / pace[0] if pace[0] > 0.0 else chunk
-                guided = -(-int(max(GUIDED_SHARE * left / threads, shortest)) // align) * align
+                guided = -(-int(max(_GUIDED_SHARE * left / threads, shortest)) // align) * align
                 size = min(chunk, max(align, guided))
             if fronts[row] < backs[row]:
                 first, end = fronts[row], min(fronts[row] + size, backs[row])

@@ -96,16 +96,15 @@ def walk_rays(walk, n_rays: int, *args, align: int = 1) -> int:
     taking them from a part of the rays of its own first, the last ones shorter but no shorter
     than :data:`TAIL_CHUNK_WAKES` helper wakes (:func:`rayaccel._jit.share_among_threads`); ``tid``
     picks the chunk's rows of per-thread stacks and mailboxes. Returns the total of what the walk
-    returns for its chunks: the unusable rays it met, for a walk that
-    tests its rays itself (see :attr:`Accelerator._walk_checks_rays`), and 0 for one that
-    returns nothing. A batch of one chunk or less runs on the calling thread at once, and one of
+    returns for its chunks: the unusable rays it met, for a walk that tests its rays itself (see
+    :attr:`Accelerator._walk_checks_rays`), and 0 for one that returns nothing. A batch of one chunk or less runs on the calling thread at once, and one of
     fewer than :data:`ALONE_FIRST_BELOW` rays begins there alone (:func:`_walk_while_alone_pays`)."""
     if n_rays <= RAY_CHUNK:
         return walk(0, n_rays, 0, *args) or 0
     threads = thread_count()
+    wake = helper_wake_seconds() if threads > 1 else 0.0
     first, found = 0, 0
     if n_rays < ALONE_FIRST_BELOW and threads > 1:
-        wake = helper_wake_seconds()
         first, found, seconds_a_ray = _walk_while_alone_pays(walk, n_rays, args, align, wake)
         if first == n_rays:
             return found
@@ -114,7 +113,7 @@ def walk_rays(walk, n_rays: int, *args, align: int = 1) -> int:
         chunk = -(-_even_chunk(n_rays, threads) // align) * align
     counts = []
     share_among_threads(lambda a, b, tid: counts.append(walk(first + a, first + b, tid, *args)), n_rays - first,
-                        chunk, align, TAIL_CHUNK_WAKES * helper_wake_seconds())
+                        chunk, align, TAIL_CHUNK_WAKES * wake)
     return found + sum(count for count in counts if count is not None)
 
 
