@@ -97,8 +97,9 @@ def walk_rays(walk, n_rays: int, *args, align: int = 1) -> int:
     than :data:`TAIL_CHUNK_WAKES` helper wakes (:func:`rayaccel._jit.share_among_threads`); ``tid``
     picks the chunk's rows of per-thread stacks and mailboxes. Returns the total of what the walk
     returns for its chunks: the unusable rays it met, for a walk that tests its rays itself (see
-    :attr:`Accelerator._walk_checks_rays`), and 0 for one that returns nothing. A batch of one chunk or less runs on the calling thread at once, and one of
-    fewer than :data:`ALONE_FIRST_BELOW` rays begins there alone (:func:`_walk_while_alone_pays`)."""
+    :attr:`Accelerator._walk_checks_rays`), and 0 for one that returns nothing. A batch of one
+    chunk or less runs on the calling thread at once, and one of fewer than
+    :data:`ALONE_FIRST_BELOW` rays begins there alone (:func:`_walk_while_alone_pays`)."""
     if n_rays <= RAY_CHUNK:
         return walk(0, n_rays, 0, *args) or 0
     threads = thread_count()
