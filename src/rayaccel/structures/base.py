@@ -24,6 +24,7 @@ from .actions import (
     nearest_hit,
     store_hit,
 )
+from .compiled_chunks import run_chunks
 from .grid.mailbox import MailboxPool
 from .hit_slots import hit_arrays, kept_hits
 from .large_primitives import LargePrimitives, large_primitives, unsettled_rays
@@ -112,6 +113,9 @@ def walk_rays(walk, n_rays: int, *args, align: int = 1) -> int:
         chunk = _shared_chunk(n_rays - first, seconds_a_ray, wake, threads, align)
     else:
         chunk = -(-_even_chunk(n_rays, threads) // align) * align
+        walked = run_chunks(walk, n_rays, chunk, align, threads, args)
+        if walked is not None:
+            return walked
     counts = []
     share_among_threads(lambda a, b, tid: counts.append(walk(first + a, first + b, tid, *args)), n_rays - first,
                         chunk, align, TAIL_CHUNK_WAKES * wake)

@@ -1,0 +1,135 @@
+"""A walk's chunks on Numba's own threads: every ray once, the answers of the pool, and the pool where unsafe."""
+
+from __future__ import annotations
+
+import threading
+
+import numba
+import numpy as np
+import pytest
+from conftest import assert_same_hits, random_rays
+
+import rayaccel as ra
+from rayaccel._jit import set_threads, thread_count
+from rayaccel.structures import base, compiled_chunks
+from rayaccel.structures.actions import hit_flags
+from rayaccel.structures.compiled_chunks import run_chunks
+
+
+@pytest.fixture
+def two_threads():
+    before = thread_count()
+    set_threads(2)
+    yield
+    set_threads(before)
+
+
+@numba.njit(nogil=True)
+def _marking_walk(ray_first, ray_end, tid, seen, chunk_ends, thread_of, action, weight):
+    """Marks each ray of its chunk once, the chunk's end at its first ray and the thread that took
+    it; returns ``weight`` a ray."""
+    for i in range(ray_first, ray_end):
+        seen[i] += 1
+        thread_of[i] = tid
+    chunk_ends[ray_first] = ray_end
+    return weight * (ray_end - ray_first)
+
+
+@numba.njit(nogil=True)
+def _walk_answering_nothing(ray_first, ray_end, tid, seen, action):
+    for i in range(ray_first, ray_end):
+        seen[i] += 1
+
+
+def _marked(n):
+    return np.zeros(n, dtype=np.int64), np.full(n, -1, dtype=np.int64), np.full(n, -1, dtype=np.int64)
+
+
+@pytest.mark.parametrize("n, chunk, align", [(100_000, 4096, 1), (262_144, 8192, 64), (140_001, 4160, 64),
+                                             (5, 64, 64)])
+def test_every_ray_once_in_aligned_chunks_that_shrink_at_the_end(two_threads, n, chunk, align):
+    seen, chunk_ends, thread_of = _marked(n)
+    found = run_chunks(_marking_walk, n, chunk, align, 2, (seen, chunk_ends, thread_of, hit_flags(seen > 0), 3))
+    assert found == 3 * n
+    assert (seen == 1).all()
+    assert set(np.unique(thread_of)) <= {0, 1}
+    firsts = np.flatnonzero(chunk_ends >= 0)
+    sizes = chunk_ends[firsts] - firsts
+    assert firsts[0] == 0 and (firsts % align == 0).all()
+    assert (chunk_ends[firsts[:-1]] == firsts[1:]).all() and chunk_ends[firsts[-1]] == n
+    full = n - firsts >= compiled_chunks._TAIL_CHUNKS * 2 * chunk
+    assert (sizes[full] == chunk).all() and (sizes <= chunk).all()
+    if full.any():
+        assert (sizes[~full] < chunk).any()
+
+
+def test_the_pool_runs_what_is_not_taken_here(two_threads, monkeypatch):
+    """None, having walked nothing: on one thread, a walk with no action, answering nothing or
+    taking a tuple other than its action, in a forked child of the importing process, under a
+    threading layer unsafe for several Python threads."""
+    n = 10_000
+    seen, chunk_ends, thread_of = _marked(n)
+    args = (seen, chunk_ends, thread_of, hit_flags(seen > 0), 1)
+    assert run_chunks(_marking_walk, n, 1024, 1, 1, args) is None
+    assert run_chunks(_marking_walk, n, 1024, 1, 2, (seen, chunk_ends, thread_of, 1, 1)) is None
+    assert run_chunks(_walk_answering_nothing, n, 1024, 1, 2, (seen, hit_flags(seen > 0))) is None
+    assert run_chunks(_marking_walk, n, 1024, 1, 2, (seen, chunk_ends, thread_of, hit_flags(seen > 0), (1,))) is None
+    with monkeypatch.context() as patch:
+        patch.setattr(compiled_chunks, "_IMPORTED_BY", -1)
+        assert run_chunks(_marking_walk, n, 1024, 1, 2, args) is None
+    with monkeypatch.context() as patch:
+        patch.setattr(compiled_chunks, "_SAFE_LAYERS", ())
+        assert run_chunks(_marking_walk, n, 1024, 1, 2, args) is None
+    assert (seen == 0).all()
+    assert run_chunks(_marking_walk, n, 1024, 1, 2, args) == n and (seen == 1).all()
+
+
+def _queries(accel, rays):
+    return accel.intersect(*rays, counters=True, reorder=False), accel.intersect(*rays), accel.occluded(*rays)
+
+
+def test_large_batches_give_the_hits_and_counters_of_the_pool(small_dragon, two_threads, monkeypatch):
+    """Batches large enough to be shared at once (:data:`rayaccel.structures.base.ALONE_FIRST_BELOW`):
+    camera rays (the packet walks) and random rays with counters (the walk of one ray at a time)
+    and without, through three methods' walks, as the pool walks them."""
+    taken = []
+    monkeypatch.setattr(base, "run_chunks", lambda *args: taken.append(run_chunks(*args)) or taken[-1])
+    box = small_dragon.bounds()
+    camera = ra.Camera.framing(box.scene_lo, box.scene_hi).rays(384, 384)
+    randoms = random_rays(small_dragon, base.ALONE_FIRST_BELOW + 999, seed=3)
+    for method in ("bvh-binned", "kdtree", "grid"):
+        accel = ra.build(small_dragon, method)
+        for rays in (camera, randoms):
+            ours = _queries(accel, rays)
+            with monkeypatch.context() as patch:
+                patch.setattr(base, "run_chunks", lambda *args: None)
+                pools = _queries(accel, rays)
+            for mine, theirs in zip(ours[:2], pools[:2]):
+                assert_same_hits(mine, theirs)
+            np.testing.assert_array_equal(ours[0].counters.tests, pools[0].counters.tests)
+            np.testing.assert_array_equal(ours[2], pools[2])
+    assert any(found is not None for found in taken)
+
+
+def test_large_batches_on_python_threads_at_once_give_the_hits_of_one(small_dragon, two_threads):
+    box = small_dragon.bounds()
+    batches = [ra.Camera.framing(box.scene_lo, box.scene_hi).rays(384, 384),
+               random_rays(small_dragon, base.ALONE_FIRST_BELOW + 1, seed=4)]
+    accel = ra.build(small_dragon, "bvh-binned")
+    alone = [(accel.intersect(*rays), accel.occluded(*rays)) for rays in batches]
+    results = []
+
+    def query(k):
+        set_threads(2)
+        for _ in range(3):
+            results.append((k, accel.intersect(*batches[k % 2]), accel.occluded(*batches[k % 2])))
+
+    workers = [threading.Thread(target=query, args=(k,)) for k in range(3)]
+    for worker in workers:
+        worker.start()
+    for worker in workers:
+        worker.join()
+    assert len(results) == 9
+    for k, hits, any_hit in results:
+        assert_same_hits(alone[k % 2][0], hits)
+        np.testing.assert_array_equal(alone[k % 2][1], any_hit)
