@@ -11,6 +11,7 @@ from conftest import assert_same_hits, random_rays
 
 import rayaccel as ra
 from rayaccel._jit import set_threads, thread_count
+from rayaccel.ray_order import Neighbours
 from rayaccel.structures import base, compiled_chunks
 from rayaccel.structures.actions import hit_flags
 from rayaccel.structures.compiled_chunks import run_chunks
@@ -36,9 +37,10 @@ def _marking_walk(ray_first, ray_end, tid, seen, chunk_ends, thread_of, action, 
 
 
 @numba.njit(nogil=True)
-def _walk_answering_nothing(ray_first, ray_end, tid, seen, action):
+def _walk_answering_nothing(ray_first, ray_end, tid, marks, scale):
+    seen, weight = marks
     for i in range(ray_first, ray_end):
-        seen[i] += 1
+        seen[i] += weight * scale
 
 
 def _marked(n):
@@ -57,23 +59,30 @@ def test_every_ray_once_in_aligned_chunks_that_shrink_at_the_end(two_threads, n,
     sizes = chunk_ends[firsts] - firsts
     assert firsts[0] == 0 and (firsts % align == 0).all()
     assert (chunk_ends[firsts[:-1]] == firsts[1:]).all() and chunk_ends[firsts[-1]] == n
-    full = n - firsts >= compiled_chunks._TAIL_CHUNKS * 2 * chunk
-    assert (sizes[full] == chunk).all() and (sizes <= chunk).all()
-    if full.any():
-        assert (sizes[~full] < chunk).any()
+    assert (sizes <= chunk).all()
+    if n > 8 * chunk:
+        assert (sizes == chunk).sum() > len(sizes) // 2
+        assert (sizes < chunk).sum() >= 2
+
+
+def test_walks_answering_nothing_and_taking_tuples(two_threads):
+    """A walk that returns nothing counts as 0; tuples among its arguments reach it whole."""
+    n = 50_000
+    seen = np.zeros(n, dtype=np.int64)
+    assert run_chunks(_walk_answering_nothing, n, 1024, 1, 2, ((seen, 2), 3)) == 0
+    assert (seen == 6).all()
 
 
 def test_the_pool_runs_what_is_not_taken_here(two_threads, monkeypatch):
-    """None, having walked nothing: on one thread, a walk with no action, answering nothing or
-    taking a tuple other than its action, in a forked child of the importing process, under a
-    threading layer unsafe for several Python threads."""
+    """None, having walked nothing: on one thread, for a walk taking a tuple within a tuple or a named
+    tuple other than an action, in a forked child of the importing process, under a threading layer
+    unsafe for several Python threads."""
     n = 10_000
     seen, chunk_ends, thread_of = _marked(n)
     args = (seen, chunk_ends, thread_of, hit_flags(seen > 0), 1)
     assert run_chunks(_marking_walk, n, 1024, 1, 1, args) is None
-    assert run_chunks(_marking_walk, n, 1024, 1, 2, (seen, chunk_ends, thread_of, 1, 1)) is None
-    assert run_chunks(_walk_answering_nothing, n, 1024, 1, 2, (seen, hit_flags(seen > 0))) is None
-    assert run_chunks(_marking_walk, n, 1024, 1, 2, (seen, chunk_ends, thread_of, hit_flags(seen > 0), (1,))) is None
+    assert run_chunks(_walk_answering_nothing, n, 1024, 1, 2, ((seen, (2,)), 3)) is None
+    assert run_chunks(_marking_walk, n, 1024, 1, 2, (*args[:4], Neighbours(1, 1.0, 1.0, 1.0))) is None
     with monkeypatch.context() as patch:
         patch.setattr(compiled_chunks, "_IMPORTED_BY", -1)
         assert run_chunks(_marking_walk, n, 1024, 1, 2, args) is None
@@ -85,20 +94,26 @@ def test_the_pool_runs_what_is_not_taken_here(two_threads, monkeypatch):
 
 
 def _queries(accel, rays):
-    return accel.intersect(*rays, counters=True, reorder=False), accel.intersect(*rays), accel.occluded(*rays)
+    return (accel.intersect(*rays, counters=True, reorder=False), accel.intersect(*rays), accel.occluded(*rays),
+            accel.count(*rays))
 
 
-def test_large_batches_give_the_hits_and_counters_of_the_pool(small_dragon, two_threads, monkeypatch):
+@pytest.mark.parametrize("layout", ["float32 lanes", "indexed"])
+def test_large_batches_give_the_hits_and_counters_of_the_pool(small_dragon, two_threads, monkeypatch, layout):
     """Batches large enough to be shared at once (:data:`rayaccel.structures.base.ALONE_FIRST_BELOW`):
     camera rays (the packet walks) and random rays with counters (the walk of one ray at a time)
-    and without, through three methods' walks, as the pool walks them."""
+    and without, hit counts, through every kind of walk, each taking its chunks here, answer as the
+    pool's walks do, over a mesh whose leaves keep float32 lanes and one that keeps the indexed
+    layout, a tuple among the walks' arguments (:mod:`rayaccel.geometry.gather`)."""
+    scene = small_dragon if layout == "float32 lanes" else ra.TriangleMesh(small_dragon.vertices + 1e-9,
+                                                                         small_dragon.faces)
     taken = []
     monkeypatch.setattr(base, "run_chunks", lambda *args: taken.append(run_chunks(*args)) or taken[-1])
-    box = small_dragon.bounds()
+    box = scene.bounds()
     camera = ra.Camera.framing(box.scene_lo, box.scene_hi).rays(384, 384)
-    randoms = random_rays(small_dragon, base.ALONE_FIRST_BELOW + 999, seed=3)
-    for method in ("bvh-binned", "kdtree", "grid"):
-        accel = ra.build(small_dragon, method)
+    randoms = random_rays(scene, base.ALONE_FIRST_BELOW + 999, seed=3)
+    for method in ("bvh-binned", "kdtree", "grid", "grid-bvh", "octree", "hgrid"):
+        accel = ra.build(scene, method)
         for rays in (camera, randoms):
             ours = _queries(accel, rays)
             with monkeypatch.context() as patch:
@@ -108,7 +123,8 @@ def test_large_batches_give_the_hits_and_counters_of_the_pool(small_dragon, two_
                 assert_same_hits(mine, theirs)
             np.testing.assert_array_equal(ours[0].counters.tests, pools[0].counters.tests)
             np.testing.assert_array_equal(ours[2], pools[2])
-    assert any(found is not None for found in taken)
+            np.testing.assert_array_equal(ours[3], pools[3])
+    assert len(taken) >= 6 * 2 * 3 and all(found is not None for found in taken)
 
 
 def test_large_batches_on_python_threads_at_once_give_the_hits_of_one(small_dragon, two_threads):

@@ -11,7 +11,11 @@ one loop that takes the next chunk from a counter the threads share, advanced by
 compare-and-exchange, the last chunks shrinking as in guided self-scheduling (Polychronopoulos &
 Kuck, IEEE Trans. Computers 36(12), 1987), and calls the walk on it, with no Python in between
 (the threads are Numba's threading layer's, OpenMP's or TBB's). That query's calls went from
-3.44-3.56 to 3.05-3.19 ms (:func:`run_chunks`).
+3.44-3.56 to 3.05-3.19 ms (:func:`run_chunks`). The threads do not take parts of the rays of
+their own first, as the pool's do: in this kernel that measured no better (time over time with
+one counter, two pairs of processes: full dragon incoherent rays 1.05-1.06 / 1.02-1.04, forest camera,
+shadow and incoherent rays 0.94-1.09). Nor can Ctrl-C stop a batch before it ends, as it could
+between the pool's chunks.
 
 The kernel calls the walk through the address of its compiled code (:func:`_call_compiled`),
 not by name: called by name, the walk's code is linked into the kernel's and optimised by LLVM
@@ -23,10 +27,8 @@ keeps it.
 Taken only where it is safe, else the pool runs the pass: a threading layer that takes parallel
 kernels from several Python threads at once (``omp``, ``tbb``; ``workqueue`` aborts the process),
 in the process that imported rayaccel (GNU OpenMP aborts a forked child that uses it after its
-parent did), and for walks that return a count (their unusable rays), take an
-:class:`.actions.Action` and no other tuple: Numba hands a ``prange`` body's tuples on as their
-items, and refuses a tuple among them (the indexed layout's ``(vertices, faces)`` of a float64
-mesh, :mod:`rayaccel.geometry.gather`), so such walks stay on the pool.
+parent did), for walks that return a count (their unusable rays) or nothing, and whose
+arguments hold tuples one level deep at most (:func:`_flattened`).
 """
 
 from __future__ import annotations
@@ -51,6 +53,9 @@ _TAIL_CHUNKS = 2
 :func:`rayaccel._jit.share_among_threads`)."""
 _SHORTEST = 64
 """Fewest rays (rounded up to the walk's alignment) of a shrinking chunk."""
+_ACTION_MARK = np.int16
+"""The dtype of :func:`_flattened`'s marker for an :class:`.actions.Action` (Numba's ``int16``)."""
+_LEAF = np.empty(0, dtype=np.int8)
 
 
 @intrinsic
@@ -67,7 +72,8 @@ def _counter_value(typingctx, counter):
 
 @intrinsic
 def _advance_counter(typingctx, counter, expected, new):
-    """Set ``counter[0]`` to ``new`` if it still holds ``expected``, atomically; whether it did."""
+    """Set ``counter[0]`` to ``new`` if it still holds ``expected``, atomically (compare-and-exchange);
+    whether it did."""
     signature = types.boolean(counter, expected, new)
 
     def codegen(context, builder, sig, args):
@@ -79,30 +85,44 @@ def _advance_counter(typingctx, counter, expected, new):
 
 
 @intrinsic
-def _call_compiled(typingctx, address, first, end, tid, head, action_fields, tail):
+def _call_compiled(typingctx, address, first, end, tid, leaves, layout):
     """The walk whose compiled code is at ``address`` on rays ``first`` to ``end - 1`` with scratch
-    row ``tid``, its other arguments ``head``, then the :class:`.actions.Action` of the fields
-    ``action_fields``, then ``tail``: called with Numba's calling convention, as Numba calls a
-    compiled function, its answer the walk's int64. The walks raise nothing; the status of the
-    call is not read."""
-    action = types.NamedTuple(tuple(action_fields.types), Action)
-    walk_args = (types.int64,) * 3 + tuple(head.types) + (action,) + tuple(tail.types)
-    signature = types.int64(address, first, end, tid, head, action_fields, tail)
+    row ``tid``, its other arguments rebuilt from ``leaves`` as ``layout`` says
+    (:func:`_flattened`): called with Numba's calling convention, as Numba calls a compiled
+    function; what the walk returns, or 0 for a walk that returns nothing. The walks raise
+    nothing; the status of the call is not read."""
+    returns = types.int64 if layout.types[0].ndim == 1 else types.none
+    walk_args = [types.int64] * 3
+    groups = []
+    taken = 0
+    for marker in layout.types[1:]:
+        count = 1 if marker.ndim == 1 else marker.ndim - 2
+        items = tuple(leaves.types[taken:taken + count])
+        if marker.ndim == 1:
+            walk_args.append(items[0])
+        elif marker.dtype == types.int16:
+            walk_args.append(types.NamedTuple(items, Action))
+        else:
+            walk_args.append(types.Tuple(items))
+        groups.append((marker.ndim > 1, taken, count))
+        taken += count
+    signature = types.int64(address, first, end, tid, leaves, layout)
 
     def codegen(context, builder, sig, args):
         call_conv = context.call_conv
-        function_type = call_conv.get_function_type(types.int64, walk_args)
+        function_type = call_conv.get_function_type(returns, walk_args)
         function = builder.inttoptr(args[0], function_type.as_pointer())
         values = [context.cast(builder, args[k], sig.args[k], types.int64) for k in (1, 2, 3)]
-        values += [builder.extract_value(args[4], k) for k in range(len(head.types))]
-        values.append(context.make_tuple(builder, action, [builder.extract_value(args[5], k)
-                                                           for k in range(len(action_fields.types))]))
-        values += [builder.extract_value(args[6], k) for k in range(len(tail.types))]
-        answer_type = call_conv.get_return_type(types.int64).pointee
+        for (grouped, first_leaf, count), walk_arg in zip(groups, walk_args[3:]):
+            items = [builder.extract_value(args[4], k) for k in range(first_leaf, first_leaf + count)]
+            values.append(context.make_tuple(builder, walk_arg, items) if grouped else items[0])
+        answer_type = call_conv.get_return_type(returns).pointee
         answer = builder.alloca(answer_type)
         builder.store(ir.Constant(answer_type, None), answer)
         error = builder.alloca(function_type.args[1].pointee)
         builder.call(function, [answer, error, *call_conv._get_arg_packer(walk_args).as_arguments(builder, values)])
+        if returns == types.none:
+            return ir.Constant(ir.IntType(64), 0)
         return builder.load(answer)
 
     return signature, codegen
@@ -110,10 +130,10 @@ def _call_compiled(typingctx, address, first, end, tid, head, action_fields, tai
 
 @inline_kernel
 def _next_chunk(counter, n, chunk, align, threads):
-    """The next chunk ``(first, end)`` of the ``n`` rays, taken from ``counter``: ``chunk`` rays, or,
-    once fewer than :data:`_TAIL_CHUNKS` chunks a thread are left, half the rays left over the
-    threads, rounded up to ``align`` and no fewer than :data:`_SHORTEST`; ``(n, n)`` when none is
-    left."""
+    """The next chunk ``(first, end)`` of the ``n`` rays, taken from ``counter`` by a
+    compare-and-exchange: ``chunk`` rays, or, once fewer than :data:`_TAIL_CHUNKS` chunks a thread
+    are left, half the rays left over the threads, rounded up to ``align`` and no fewer than
+    :data:`_SHORTEST`; ``(n, n)`` when none is left."""
     shortest = -(-_SHORTEST // align) * align
     while True:
         first = _counter_value(counter)
@@ -129,7 +149,7 @@ def _next_chunk(counter, n, chunk, align, threads):
 
 
 @parallel_kernel
-def _take_chunks(address, n, chunk, align, counter, threads, head, action_fields, tail):
+def _take_chunks(address, n, chunk, align, counter, threads, leaves, layout):
     """Every chunk of the ``n`` rays walked (:func:`_call_compiled`) by ``threads`` threads, each
     taking chunks (:func:`_next_chunk`) until none is left, with its own scratch row; the total of
     what the walk returned (summed a thread first: Numba's ``prange`` drops a sum taken inside the
@@ -142,7 +162,7 @@ def _take_chunks(address, n, chunk, align, counter, threads, head, action_fields
             first, end = _next_chunk(counter, n, chunk, align, threads)
             if first >= n:
                 break
-            mine += _call_compiled(address, first, end, tid, head, action_fields, tail)
+            mine += _call_compiled(address, first, end, tid, leaves, layout)
         found += mine
     return found
 
@@ -173,19 +193,47 @@ def _type_key(value):
     return numba.typeof(value)
 
 
-def _compiled_address(walk, args: tuple) -> int:
+def _marker(dtype, ndim: int) -> np.ndarray:
+    """An empty array whose type tells :func:`_call_compiled` how to rebuild an argument."""
+    return np.empty((0,) * ndim, dtype=dtype)
+
+
+def _flattened(args: tuple) -> tuple[tuple, tuple] | None:
+    """``args`` as a flat tuple of their items, and the layout that rebuilds them, one empty array
+    an argument (:func:`_marker`): of one dimension for an argument given as it is, of ``2 + k``
+    for a tuple of ``k`` items (of dtype :data:`_ACTION_MARK` for an :class:`.actions.Action`).
+    Numba hands a ``prange`` body's tuples on as their items and refuses a tuple among them (the
+    indexed layout's ``(vertices, faces)`` of a float64 mesh, :mod:`rayaccel.geometry.gather`), so
+    the tuples go in flat. None for a deeper tuple or another kind of named tuple."""
+    leaves, layout = [], []
+    for value in args:
+        if not isinstance(value, tuple):
+            leaves.append(value)
+            layout.append(_LEAF)
+            continue
+        if type(value) not in (tuple, Action) or any(isinstance(item, tuple) for item in value):
+            return None
+        leaves.extend(value)
+        layout.append(_marker(_ACTION_MARK if type(value) is Action else np.int8, 2 + len(value)))
+    return tuple(leaves), tuple(layout)
+
+
+def _compiled_address(walk, args: tuple) -> tuple[int, np.ndarray]:
     """The address of ``walk``'s compiled code for ``args`` (after its ray range and thread row),
-    compiled or loaded by a walk of no rays; 0 for a walk that does not return an int64."""
+    compiled or loaded by a walk of no rays, and the first marker of :func:`_call_compiled`'s
+    layout, which tells whether the walk returns an int64 or nothing; address 0 for a walk that
+    returns something else."""
     key = (walk, tuple(_type_key(value) for value in args))
-    address = _entries.get(key)
-    if address is None:
+    entry = _entries.get(key)
+    if entry is None:
         walk(0, 0, 0, *args)
         compiled = walk.overloads.get(tuple(walk.typeof_pyval(value) for value in (0, 0, 0, *args)))
+        returns = compiled.signature.return_type if compiled is not None else None
         address = 0
-        if compiled is not None and compiled.signature.return_type == types.int64:
+        if returns in (types.int64, types.none):
             address = compiled.library.get_pointer_to_function(compiled.fndesc.llvm_func_name)
-        _entries[key] = address
-    return address
+        entry = _entries[key] = address, _marker(np.uint8, 1 if returns == types.int64 else 2)
+    return entry
 
 
 def _threads_usable() -> bool:
@@ -214,15 +262,19 @@ def run_chunks(walk, n_rays: int, chunk: int, align: int, threads: int, args: tu
     Intel host, two vCPUs): forest-small-chair's 1024^2 camera rays 0.92-0.97 / 0.86-0.92, its
     145,931 shadow rays 0.905-0.96 / 0.92-0.98, 2^20 incoherent rays 0.94-1.03 / 0.97-0.98; the
     full dragon's camera rays 0.95 / 0.93-0.98, shadow rays 0.97-0.985 / 0.96-1.00, incoherent
-    0.96-0.99 / 0.975-0.98. Incoherent rays lose the pool's parts of a thread's own
-    (:func:`rayaccel._jit.share_among_threads`, 1.6-3.6 % of their work) and gain its hand-overs."""
-    positions = [k for k, value in enumerate(args) if isinstance(value, Action)]
-    if threads < 2 or len(positions) != 1 or any(type(value) is tuple for value in args) or not _threads_usable():
+    0.96-0.99 / 0.975-0.98 (``bvh-binned``, the float32 lanes layout). In one process, this way and
+    the pool in turn, medians of 10 (forest) and 8 (dragon) settled calls a way, forest camera rays
+    0.955-0.968 / 0.885-0.987, shadow rays 0.910-0.930 / 0.927-0.938, incoherent 0.994-1.000 /
+    0.982-1.033 over ``bvh-binned`` (both layouts), ``kdtree`` and ``grid-bvh``; the full dragon's
+    0.968-0.994 / 0.947-0.990, 0.963-0.987 / 0.968-0.988 and 1.000-1.008 / 0.964-0.991."""
+    if threads < 2 or not _threads_usable():
         return None
-    address = _compiled_address(walk, args)
+    flat = _flattened(args)
+    if flat is None:
+        return None
+    address, returns = _compiled_address(walk, args)
     if not address:
         return None
-    k = positions[0]
+    leaves, layout = flat
     counter = np.zeros(1, dtype=np.int64)
-    return int(_take_chunks(address, n_rays, chunk, align, counter, threads, args[:k], tuple(args[k]),
-                            args[k + 1:]))
+    return int(_take_chunks(address, n_rays, chunk, align, counter, threads, leaves, (returns, *layout)))
