@@ -39,6 +39,7 @@ import numba
 import numpy as np
 from llvmlite import ir
 from numba import prange, types
+from numba.core import cgutils
 from numba.extending import intrinsic
 
 from .._jit import inline_kernel, parallel_kernel
@@ -117,9 +118,9 @@ def _call_compiled(typingctx, address, first, end, tid, leaves, layout):
             items = [builder.extract_value(args[4], k) for k in range(first_leaf, first_leaf + count)]
             values.append(context.make_tuple(builder, walk_arg, items) if grouped else items[0])
         answer_type = call_conv.get_return_type(returns).pointee
-        answer = builder.alloca(answer_type)
+        answer = cgutils.alloca_once(builder, answer_type)
         builder.store(ir.Constant(answer_type, None), answer)
-        error = builder.alloca(function_type.args[1].pointee)
+        error = cgutils.alloca_once(builder, function_type.args[1].pointee)
         builder.call(function, [answer, error, *call_conv._get_arg_packer(walk_args).as_arguments(builder, values)])
         if returns == types.none:
             return ir.Constant(ir.IntType(64), 0)
