@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import threading
-
 import numba
 import numpy as np
 import pytest
@@ -125,27 +123,3 @@ def test_large_batches_give_the_hits_and_counters_of_the_pool(small_dragon, two_
             np.testing.assert_array_equal(ours[2], pools[2])
             np.testing.assert_array_equal(ours[3], pools[3])
     assert len(taken) >= 6 * 2 * 3 and all(found is not None for found in taken)
-
-
-def test_large_batches_on_python_threads_at_once_give_the_hits_of_one(small_dragon, two_threads):
-    box = small_dragon.bounds()
-    batches = [ra.Camera.framing(box.scene_lo, box.scene_hi).rays(384, 384),
-               random_rays(small_dragon, base.ALONE_FIRST_BELOW + 1, seed=4)]
-    accel = ra.build(small_dragon, "bvh-binned")
-    alone = [(accel.intersect(*rays), accel.occluded(*rays)) for rays in batches]
-    results = []
-
-    def query(k):
-        set_threads(2)
-        for _ in range(3):
-            results.append((k, accel.intersect(*batches[k % 2]), accel.occluded(*batches[k % 2])))
-
-    workers = [threading.Thread(target=query, args=(k,)) for k in range(3)]
-    for worker in workers:
-        worker.start()
-    for worker in workers:
-        worker.join()
-    assert len(results) == 9
-    for k, hits, any_hit in results:
-        assert_same_hits(alone[k % 2][0], hits)
-        np.testing.assert_array_equal(alone[k % 2][1], any_hit)

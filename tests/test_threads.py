@@ -263,12 +263,15 @@ def test_lent_rows_come_back_for_the_next_block_and_are_never_lent_twice():
         assert any(scratch is h for h in held)
 
 
-def test_queries_on_python_threads_at_once_give_the_hits_of_one(small_dragon):
+@pytest.mark.parametrize("side, randoms", [(64, 4_000), (384, base.ALONE_FIRST_BELOW + 1)])
+def test_queries_on_python_threads_at_once_give_the_hits_of_one(small_dragon, side, randoms):
     """Each query borrows its own per-thread scratch (:func:`rayaccel._jit.lent_rows`), so queries
     running side by side on Python threads answer as each would alone: camera rays (the packet
-    walk) and random rays (the walk of one ray at a time)."""
+    walk) and random rays (the walk of one ray at a time), in batches the pool's threads share and
+    in batches large enough for Numba's threads (:mod:`rayaccel.structures.compiled_chunks`)."""
     box = small_dragon.bounds()
-    batches = [ra.Camera.framing(box.scene_lo, box.scene_hi).rays(64, 64), random_rays(small_dragon, 4_000, seed=5)]
+    batches = [ra.Camera.framing(box.scene_lo, box.scene_hi).rays(side, side),
+               random_rays(small_dragon, randoms, seed=5)]
     accel = ra.build(small_dragon, "bvh-binned")
     alone = [(accel.intersect(*rays), accel.occluded(*rays)) for rays in batches]
     results = []
