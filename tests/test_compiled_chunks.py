@@ -8,19 +8,10 @@ import pytest
 from conftest import assert_same_hits, random_rays
 
 import rayaccel as ra
-from rayaccel._jit import set_threads, thread_count
 from rayaccel.ray_order import Neighbours
 from rayaccel.structures import base, compiled_chunks
 from rayaccel.structures.actions import hit_flags
 from rayaccel.structures.compiled_chunks import run_chunks
-
-
-@pytest.fixture
-def two_threads():
-    before = thread_count()
-    set_threads(2)
-    yield
-    set_threads(before)
 
 
 @numba.njit(nogil=True)

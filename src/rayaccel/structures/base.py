@@ -100,7 +100,9 @@ def walk_rays(walk, n_rays: int, *args, align: int = 1) -> int:
     returns for its chunks: the unusable rays it met, for a walk that tests its rays itself (see
     :attr:`Accelerator._walk_checks_rays`), and 0 for one that returns nothing. A batch of one
     chunk or less runs on the calling thread at once, and one of fewer than
-    :data:`ALONE_FIRST_BELOW` rays begins there alone (:func:`_walk_while_alone_pays`)."""
+    :data:`ALONE_FIRST_BELOW` rays begins there alone (:func:`_walk_while_alone_pays`); a larger
+    one runs on Numba's own threads where :func:`.compiled_chunks.run_chunks` takes it, each
+    thread taking the next chunk itself, with no Python between chunks."""
     if n_rays <= RAY_CHUNK:
         return walk(0, n_rays, 0, *args) or 0
     threads = thread_count()
