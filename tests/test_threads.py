@@ -258,8 +258,8 @@ def test_lent_rows_come_back_for_the_next_block_and_are_never_lent_twice():
 def test_queries_on_python_threads_at_once_give_the_hits_of_one(small_dragon, side, randoms):
     """Each query borrows its own per-thread scratch (:func:`rayaccel._jit.lent_rows`), so queries
     running side by side on Python threads answer as each would alone: camera rays (the packet
-    walk) and random rays (the walk of one ray at a time), in batches the pool's threads share and
-    in batches large enough for Numba's threads (:mod:`rayaccel.structures.compiled_chunks`)."""
+    walk) and random rays (the walk of one ray at a time), in batches that begin on the calling
+    thread alone and in batches shared at once (:data:`rayaccel.structures.base.ALONE_FIRST_BELOW`)."""
     box = small_dragon.bounds()
     batches = [ra.Camera.framing(box.scene_lo, box.scene_hi).rays(side, side),
                random_rays(small_dragon, randoms, seed=5)]

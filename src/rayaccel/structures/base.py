@@ -24,7 +24,6 @@ from .actions import (
     nearest_hit,
     store_hit,
 )
-from .compiled_chunks import run_chunks
 from .grid.mailbox import MailboxPool
 from .hit_slots import hit_arrays, kept_hits
 from .large_primitives import LargePrimitives, large_primitives, unsettled_rays
@@ -100,9 +99,7 @@ def walk_rays(walk, n_rays: int, *args, align: int = 1) -> int:
     returns for its chunks: the unusable rays it met, for a walk that tests its rays itself (see
     :attr:`Accelerator._walk_checks_rays`), and 0 for one that returns nothing. A batch of one
     chunk or less runs on the calling thread at once, and one of fewer than
-    :data:`ALONE_FIRST_BELOW` rays begins there alone (:func:`_walk_while_alone_pays`); a larger
-    one runs on Numba's own threads where :func:`.compiled_chunks.run_chunks` takes it, each
-    thread taking the next chunk itself, with no Python between chunks."""
+    :data:`ALONE_FIRST_BELOW` rays begins there alone (:func:`_walk_while_alone_pays`)."""
     if n_rays <= RAY_CHUNK:
         return walk(0, n_rays, 0, *args) or 0
     threads = thread_count()
@@ -115,9 +112,6 @@ def walk_rays(walk, n_rays: int, *args, align: int = 1) -> int:
         chunk = _shared_chunk(n_rays - first, seconds_a_ray, wake, threads, align)
     else:
         chunk = -(-_even_chunk(n_rays, threads) // align) * align
-        walked = run_chunks(walk, n_rays, chunk, align, threads, args)
-        if walked is not None:
-            return walked
     counts = []
     share_among_threads(lambda a, b, tid: counts.append(walk(first + a, first + b, tid, *args)), n_rays - first,
                         chunk, align, TAIL_CHUNK_WAKES * wake)
