@@ -13,7 +13,6 @@ from hypothesis import HealthCheck, settings
 os.environ["RAYACCEL_GRID_COST_RATIO"] = "triangle=2.6,sphere=1.0"
 
 import rayaccel as ra  # noqa: E402
-from rayaccel._jit import set_threads, thread_count  # noqa: E402
 from rayaccel.structures.bvh.packet_slab import PACKET, bound_span  # noqa: E402
 from rayaccel.structures.bvh.traverse_packet import SPAN  # noqa: E402
 
@@ -27,15 +26,6 @@ def examples(ci_count: int) -> int:
     profile ran each test's CI count."""
     long_count = settings.get_profile("long").max_examples
     return long_count if settings.default.max_examples == long_count else ci_count
-
-
-@pytest.fixture
-def two_threads():
-    """Parallel kernels and the walks' threads two for the test."""
-    before = thread_count()
-    set_threads(2)
-    yield
-    set_threads(before)
 
 
 @pytest.fixture(scope="session")

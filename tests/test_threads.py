@@ -19,9 +19,18 @@ from rayaccel._jit import (
     on_threads,
     set_threads,
     share_among_threads,
+    thread_count,
     thread_rows,
 )
 from rayaccel.structures import base
+
+
+@pytest.fixture
+def two_threads():
+    before = thread_count()
+    set_threads(2)
+    yield
+    set_threads(before)
 
 
 @pytest.mark.parametrize("n, chunk", [(0, 4), (1, 4), (7, 4), (100, 7), (4096, 1024)])

@@ -474,8 +474,8 @@ def share_among_threads(run, n: int, chunk: int, align: int = 1, shortest_second
     if threads == 1:
         run(0, n, 0)
         return
-    starts = [row * n // threads // align * align for row in range(threads)]
-    fronts, backs = starts, starts[1:] + [n]
+    fronts = [row * n // threads // align * align for row in range(threads)]
+    backs = fronts[1:] + [n]
     lock = threading.Lock()
     pace = [0.0]
     failed = []
